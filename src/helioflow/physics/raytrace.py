@@ -1,0 +1,343 @@
+"""The fast, differentiable tracer: heliostat surfaces -> flux images on a target plane.
+
+How a ray is traced. For every sun position s and surface point p the central reflected ray
+r0 = reflect(-sun, n) is computed once. A ray's direction is perturbed to first order in small
+angles (exact to O(angle^3) in direction, since only the direction matters for the intersection):
+
+    d = r0 + a1 h1 + a2 h2 + b1 g1 + b2 g2
+
+with (a1, a2) the sun-shape deviation of the incoming ray (h_k = reflection of the sun-plane axes
+e_k), (b1, b2) the slope-error tilt of the normal along the surface tangents t_k
+(g_k = -2[(i.t_k) n + (i.n) t_k], the derivative of the reflection law), and its origin jittered
+uniformly over the point's surface cell. All of this is projected once onto the target's normal
+and axes, so that a ray costs a handful of multiply-adds, one division and the splat.
+
+Splatting:
+  bilinear  each ray's power goes to its four nearest pixel centres with bilinear weights
+            (Monte Carlo, differentiable in the hit positions). The expected image is the flux
+            averaged with a one-pixel tent filter.
+  kernel    each surface point's central ray deposits the analytic beam-spread footprint
+            (sun shape convolved with the slope error, see sun.radial_density): flux density
+            power * f(theta) * cos(gamma) / r^2 at the target, theta the angle off the central ray.
+            It is evaluated on a half-pixel grid and tent-filtered, so both modes estimate the
+            same image; noise-free with far fewer rays. Slope error enters isotropically (2 sigma).
+
+Random numbers come from a pool of sample rows drawn once per call from the seed; each
+(sun position, point) reads K consecutive rows from a random offset. A fixed seed gives identical
+images; memory is bounded by `chunk_rays` whatever the ray count.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import torch
+from torch import Tensor
+
+from .geometry import normalize, plane_axes, reflect, sun_vector
+from .heliostat import Heliostat, orientation, sample_surface
+from .sun import SunShape, radial_density, sample_deviations, support_radius
+from .target import Target
+
+SPLATS = ("bilinear", "kernel")
+POOL_SIZE = 2**20
+FOOTPRINT_SUPERSAMPLING = 3  # footprints are box-averaged over q x q points per pixel
+
+
+@dataclass(frozen=True)
+class Optics:
+    """The physics a trace applies, resolved from the effect list (see effects.py).
+
+    Attributes:
+        sun: sun shape of the incoming rays.
+        slope_error: per-axis std of the surface normal's random tilt (rad).
+        dni: direct normal irradiance (W/m^2).
+        reflectivity: mirror reflectivity (1).
+        transmittance: slant range (m) -> atmospheric transmittance; None = lossless.
+    """
+
+    sun: SunShape
+    slope_error: float = 0.0
+    dni: float = 1000.0
+    reflectivity: float = 1.0
+    transmittance: Callable[[Tensor], Tensor] | None = None
+
+
+@dataclass
+class _Rays:
+    """Per (sun position, surface point) coefficients, projected on the target: shapes (S, P, ...)."""
+
+    along: Tensor  # (S, P, 5, 3) projections (normal, right, up) of r0, h1, h2, g1, g2
+    offset: Tensor  # (S, P, 3) (c - o).n, (o - c).right, (o - c).up of the cell centre
+    jitter: Tensor  # (S, P, 2, 3) the same projections of the two cell half-extent vectors
+    power: Tensor  # (S, P) power reflected by the cell towards the target (W)
+
+
+def trace(
+    heliostats: Heliostat | Sequence[Heliostat],
+    target: Target,
+    azimuth: Tensor,
+    elevation: Tensor,
+    optics: Optics,
+    *,
+    rays: int,
+    splat: str = "bilinear",
+    cells_per_side: int = 32,
+    seed: int = 0,
+    chunk_rays: int = 2**21,
+    aim_point: Tensor | None = None,
+) -> Tensor:
+    """Flux images of heliostats on a target, one per sun position.
+
+    Args:
+        heliostats: one heliostat or several (their flux adds up).
+        target: the plane the images lie on.
+        azimuth, elevation: (S,) sun position (rad; azimuth 0 = south, +pi/2 = east).
+        optics: sun shape, slope error, DNI, reflectivity, attenuation.
+        rays: rays per heliostat and sun position (bilinear); kernel splatting uses one ray per
+            surface cell and ignores it.
+        splat: "bilinear" or "kernel".
+        cells_per_side: each facet is sampled on a grid of this many cells per side.
+        seed: seed of the random pool; the same seed gives identical images.
+        chunk_rays: rays (or kernel evaluations) held in memory at once.
+        aim_point: (3,) ENU aim point; default the target centre.
+
+    Returns:
+        (S, H, W) flux density (W/m^2), tent-averaged over pixels, differentiable in the
+        heliostats' tensors.
+    """
+    if splat not in SPLATS:
+        raise ValueError(f"splat must be one of {SPLATS}, got {splat!r}")
+    heliostats = [heliostats] if isinstance(heliostats, Heliostat) else list(heliostats)
+    dtype, device = heliostats[0].facet_size.dtype, heliostats[0].facet_size.device
+    aim = target.center.to(dtype=dtype, device=device) if aim_point is None else aim_point
+    rows, cols = target.resolution
+    sun = sun_vector(azimuth.to(dtype=dtype, device=device), elevation.to(dtype=dtype, device=device))
+    generator = torch.Generator(device="cpu").manual_seed(seed)
+    images = []
+    for start in range(0, len(sun), _sun_chunk(heliostats, cells_per_side)):
+        s_sun = sun[start : start + _sun_chunk(heliostats, cells_per_side)]
+        image = torch.zeros(len(s_sun), rows, cols, dtype=dtype, device=device)
+        for heliostat in heliostats:
+            coeffs = _project(heliostat, sample_surface(heliostat, cells_per_side), s_sun, target, aim, optics)
+            if splat == "bilinear":
+                image = image + _splat_bilinear(coeffs, target, optics, rays, generator, chunk_rays)
+            else:
+                image = image + _splat_kernel(coeffs, target, optics, heliostat.n_facets)
+        images.append(image)
+    return torch.cat(images) / target.pixel_area
+
+
+def _sun_chunk(heliostats: Sequence[Heliostat], cells_per_side: int) -> int:
+    """Sun positions per batch so that the (S, P, 25) coefficient tensors stay below ~64 MB."""
+    points = heliostats[0].n_facets * cells_per_side**2
+    return max(1, 2**24 // (25 * points))
+
+
+def _project(heliostat: Heliostat, samples, sun: Tensor, target: Target, aim: Tensor, optics: Optics) -> _Rays:
+    """Coefficients of every (sun position, surface point) pair; see the module docstring."""
+    rot = orientation(heliostat, sun, aim)  # (S, 3, 3)
+    dtype = rot.dtype
+    centre, normal = target.center.to(dtype), target.normal.to(dtype)
+    right, up = (a.to(dtype) for a in target.axes())
+    frame = torch.stack((normal, right, up), dim=-1)  # (3, 3) columns = target normal, right, up
+    origin = heliostat.position + torch.einsum("sij,pj->spi", rot, samples.points)  # (S, P, 3)
+    n = torch.einsum("sij,pj->spi", rot, samples.normals)  # (S, P, 3)
+    half = torch.einsum("sij,pkj->spki", rot, samples.half_extent)  # (S, P, 2, 3)
+    incoming = -sun[:, None, :]  # (S, 1, 3)
+    cos_in = -(incoming * n).sum(-1)  # (S, P)
+    r0 = reflect(incoming, n)
+    e1, e2 = plane_axes(sun)
+    h1, h2 = reflect(e1[:, None, :], n), reflect(e2[:, None, :], n)
+    t1 = normalize(half[:, :, 0] - (half[:, :, 0] * n).sum(-1, keepdim=True) * n)
+    t2 = torch.cross(n, t1, dim=-1)
+    i_dot_n = (incoming * n).sum(-1, keepdim=True)
+    g1 = -2.0 * ((incoming * t1).sum(-1, keepdim=True) * n + i_dot_n * t1)
+    g2 = -2.0 * ((incoming * t2).sum(-1, keepdim=True) * n + i_dot_n * t2)
+    along = torch.stack((r0, h1, h2, g1, g2), dim=2) @ frame  # (S, P, 5, 3)
+    rel = (origin - centre) @ frame  # (S, P, 3)
+    offset = torch.stack((-rel[..., 0], rel[..., 1], rel[..., 2]), dim=-1)
+    jit = half @ frame
+    jitter = torch.stack((-jit[..., 0], jit[..., 1], jit[..., 2]), dim=-1)
+    power = optics.dni * optics.reflectivity * samples.area * cos_in.clamp_min(0.0)
+    if optics.transmittance is not None:
+        power = power * optics.transmittance((centre - heliostat.position).norm())
+    return _Rays(along, offset, jitter, power)
+
+
+def _pool(optics: Optics, n: int, generator: torch.Generator, dtype) -> Tensor:
+    """(6, n) random rows: sun deviation (2, rad), slope tilt (2, rad), cell jitter (2, in [-1, 1])."""
+    sun = sample_deviations(optics.sun, n, generator, dtype=torch.float64).T
+    slope = torch.randn(2, n, generator=generator, dtype=torch.float64) * optics.slope_error
+    jitter = torch.rand(2, n, generator=generator, dtype=torch.float64) * 2.0 - 1.0
+    return torch.cat((sun, slope, jitter)).to(dtype)
+
+
+def _splat_bilinear(
+    c: _Rays, target: Target, optics: Optics, rays: int, generator: torch.Generator, chunk_rays: int
+) -> Tensor:
+    """Monte Carlo rays splatted bilinearly: (S, H, W) power per pixel (W)."""
+    n_sun, n_points = c.power.shape
+    dtype, device = c.power.dtype, c.power.device
+    per_point = max(1, math.ceil(rays / n_points))
+    pool_size = min(POOL_SIZE, 1 << max(per_point * n_points - 1, 1).bit_length())
+    pool = _pool(optics, pool_size, generator, dtype).to(device)
+    # Only the random components that do something are drawn: sun (0, 1), slope (2, 3), jitter (4, 5).
+    active = [0, 1] * (optics.sun.kind != "point") + [2, 3] * (optics.slope_error > 0) + [4, 5]
+    direction, position = _pixel_coefficients(c, target)
+    image = torch.zeros(n_sun, *target.resolution, dtype=dtype, device=device)
+    k = torch.arange(per_point, device=device)
+    points_per_chunk = max(1, chunk_rays // (per_point * n_sun))
+    for p0 in range(0, n_points, points_per_chunk):
+        sl = slice(p0, p0 + points_per_chunk)
+        n_chunk = c.power[:, sl].shape[1]
+        start = torch.randint(0, pool_size, (n_sun, n_chunk, 1), generator=generator).to(device)
+        idx = (start + k).bitwise_and_(pool_size - 1)  # (S, Pc, K)
+        draws = {i: torch.take(pool[i], idx) for i in active}
+        axis = [_affine(direction[m], draws, sl, (0, 1, 2, 3)) for m in range(3)]
+        pos = [_affine(position[m], draws, sl, (4, 5)) for m in range(3)]
+        t = pos[0] / axis[0]
+        power = torch.where((t > 0) & (axis[0] < 0), c.power[:, sl, None] / per_point, 0.0)
+        col = torch.addcmul(pos[1], t, axis[1])
+        row = torch.addcmul(pos[2], t, axis[2])
+        image = image + _deposit(col.reshape(n_sun, -1), row.reshape(n_sun, -1), power.reshape(n_sun, -1),
+                                 target.resolution)
+    return image
+
+
+def _deposit(col: Tensor, row: Tensor, power: Tensor, resolution: tuple[int, int]) -> Tensor:
+    """Bilinear splat of weighted hits into images.
+
+    Args:
+        col, row: (B, N) padded pixel coordinates: (1, 1) is the centre of the top-left pixel.
+        power: (B, N) weight of each hit (W).
+        resolution: (H, W).
+
+    Returns:
+        (B, H, W) power per pixel; hits beyond the border ring are dropped.
+    """
+    rows, cols = resolution
+    n_images = col.shape[0]
+    stride, plane = cols + 3, (rows + 3) * (cols + 3)
+    col = col.clamp(0.0, cols + 1)
+    row = row.clamp(0.0, rows + 1)
+    col0, row0 = col.floor(), row.floor()
+    wc, wr = col - col0, row - row0
+    base = torch.addcmul(col0, row0, torch.tensor(float(stride), dtype=col.dtype)).int()
+    base = (base + (torch.arange(n_images, device=col.device, dtype=torch.int32) * plane)[:, None]).reshape(-1)
+    wc, wr, power = wc.reshape(-1), wr.reshape(-1), power.reshape(-1)
+    pr1 = power * wr
+    pr0 = power - pr1
+    w11 = pr1 * wc
+    w01 = pr0 * wc
+    flat = torch.zeros(n_images * plane, dtype=col.dtype, device=col.device)
+    for shift, weight in ((0, pr0 - w01), (1, w01), (stride, pr1 - w11), (stride + 1, w11)):
+        flat = flat.index_add(0, base + shift, weight)
+    return flat.view(n_images, rows + 3, cols + 3)[:, 1 : rows + 1, 1 : cols + 1]
+
+
+def _pixel_coefficients(c: _Rays, target: Target) -> tuple[list[dict], list[dict]]:
+    """Ray coefficients rescaled so that the hit lands in padded pixel coordinates.
+
+    Returns, for m = 0 (target normal), 1 (column), 2 (row): direction[m] = {term: (S, P, 1)}
+    with term "base" for r0 and 0..3 for the sun and slope components, and position[m] =
+    {term: (S, P, 1)} with "base" for the cell centre and 4, 5 for the jitter components.
+    Column = (u + width/2)/pixel_width + 1/2, row = (height/2 - v)/pixel_height + 1/2 (one ring
+    of padding left and top).
+    """
+    rows, cols = target.resolution
+    pw, ph = target.pixel_size
+    scale = (1.0, 1.0 / pw, -1.0 / ph)
+    shift = (0.0, target.width / (2 * pw) + 0.5, target.height / (2 * ph) + 0.5)
+    direction, position = [], []
+    for m in range(3):
+        d = {"base": c.along[:, :, 0, m, None] * scale[m]}
+        d.update({i: c.along[:, :, i + 1, m, None] * scale[m] for i in range(4)})
+        direction.append(d)
+        position.append({"base": c.offset[:, :, m, None] * scale[m] + shift[m],
+                         4: c.jitter[:, :, 0, m, None] * scale[m], 5: c.jitter[:, :, 1, m, None] * scale[m]})
+    return direction, position
+
+
+def _affine(coeff: dict, draws: dict, sl: slice, terms: tuple[int, ...]) -> Tensor:
+    """coeff["base"] + sum_i draws[i] * coeff[i] over the drawn terms: (S, Pc, K)."""
+    out = None
+    for i in terms:
+        if i in draws:
+            out = torch.addcmul(coeff["base"][:, sl] if out is None else out, draws[i], coeff[i][:, sl])
+    return coeff["base"][:, sl].expand(-1, -1, next(iter(draws.values())).shape[-1]) if out is None else out
+
+
+def _splat_kernel(c: _Rays, target: Target, optics: Optics, n_facets: int) -> Tensor:
+    """Analytic footprints of the cells' central rays: (S, H, W) tent-averaged power per pixel (W).
+
+    The footprint of a ray, power * f(theta) * cos(gamma) / r^2, changes little across one facet
+    (its direction and path length vary by a few mrad and percent), so each facet's central rays
+    are deposited bilinearly on a canvas that extends the target by half its size on each side,
+    and the canvas is convolved (FFT) with the footprint of the facet's power-weighted mean ray.
+    Flux from rays that land outside the canvas is not followed.
+    """
+    density = radial_density(optics.sun, optics.slope_error)
+    n_sun, n_points = c.power.shape
+    rows, cols = target.resolution
+    pad_r, pad_c = rows // 2, cols // 2
+    canvas = replace(target, width=target.width * (cols + 2 * pad_c) / cols,
+                     height=target.height * (rows + 2 * pad_r) / rows, resolution=(rows + 2 * pad_r, cols + 2 * pad_c))
+    direction, position = _pixel_coefficients(c, canvas)
+    t = position[0]["base"] / direction[0]["base"]  # (S, P, 1); the normal axis is not rescaled
+    power = torch.where((t > 0) & (direction[0]["base"] < 0), c.power[..., None], 0.0)
+    col = torch.addcmul(position[1]["base"], t, direction[1]["base"])
+    row = torch.addcmul(position[2]["base"], t, direction[2]["base"])
+    deposit = _deposit(*(x.reshape(n_sun * n_facets, -1) for x in (col, row, power)), canvas.resolution)
+    central = c.along[:, :, 0, :]  # (S, P, 3) on (normal, right, up)
+    length = central.norm(dim=-1)
+    weight = power[..., 0].reshape(n_sun, n_facets, -1)
+    weight = weight / weight.sum(-1, keepdim=True).clamp_min(1e-30)
+    unit = (weight[..., None] * (central / length[..., None]).reshape(n_sun, n_facets, -1, 3)).sum(2)
+    path = (weight * (t[..., 0] * length).reshape(n_sun, n_facets, -1)).sum(-1)
+    kernel = _footprint(density, normalize(unit).reshape(-1, 3), path.reshape(-1), target, (rows + pad_r, cols + pad_c))
+    # A footprint that lies wholly inside the kernel window carries exactly the ray's power;
+    # renormalising removes the lattice error of sampling a hard-edged sun disc on pixels.
+    spread = support_radius(optics.sun, optics.slope_error) * path.reshape(-1) / normalize(unit).reshape(-1, 3)[:, 0].abs()
+    inside = spread < min((rows + pad_r) * target.pixel_size[1], (cols + pad_c) * target.pixel_size[0])
+    total = kernel.sum((-2, -1)) * target.pixel_area
+    kernel = torch.where(inside[:, None, None], kernel / total[:, None, None].clamp_min(1e-30), kernel)
+    flux = _convolve(deposit, kernel)  # (S * F, Hc + 2 Jr, Wc + 2 Jc) centred on the canvas
+    jr, jc = rows + pad_r, cols + pad_c
+    flux = flux[:, jr + pad_r : jr + pad_r + rows, jc + pad_c : jc + pad_c + cols]
+    return flux.reshape(n_sun, n_facets, rows, cols).sum(1) * target.pixel_area
+
+
+def _footprint(density, unit: Tensor, path: Tensor, target: Target, reach: tuple[int, int]) -> Tensor:
+    """Flux (W/m^2 per W) of one ray around its hit point, at pixel offsets.
+
+    Args:
+        density: theta (rad) -> angular density (1/sr) of the beam spread.
+        unit: (B, 3) unit ray direction projected on the target's (normal, right, up).
+        path: (B,) distance from the mirror to the hit point (m).
+        reach: (Jr, Jc) offsets -Jr..Jr rows and -Jc..Jc columns.
+
+    Returns:
+        (B, 2 Jr + 1, 2 Jc + 1) averaged over each pixel; row offset i means the pixel lies i rows
+        below the hit.
+    """
+    pw, ph = target.pixel_size
+    dtype, device = unit.dtype, unit.device
+    sub = (torch.arange(FOOTPRINT_SUPERSAMPLING, dtype=dtype, device=device) + 0.5) / FOOTPRINT_SUPERSAMPLING - 0.5
+    du = (torch.arange(-reach[1], reach[1] + 1, dtype=dtype, device=device)[:, None] + sub).reshape(-1) * pw
+    dv = -(torch.arange(-reach[0], reach[0] + 1, dtype=dtype, device=device)[:, None] + sub).reshape(-1) * ph
+    eu, ev = unit[:, 1, None, None], unit[:, 2, None, None]
+    inv_r2 = (1.0 / path**2)[:, None, None]
+    theta2 = (dv[:, None] ** 2 * (1 - ev**2) + du[None, :] ** 2 * (1 - eu**2) - 2 * eu * ev * du[None, :] * dv[:, None])
+    theta = (theta2 * inv_r2).clamp_min(1e-24).sqrt()
+    fine = density(theta) * unit[:, 0, None, None].abs() * inv_r2  # (B, Hk * q, Wk * q)
+    return torch.nn.functional.avg_pool2d(fine[:, None], FOOTPRINT_SUPERSAMPLING)[:, 0]
+
+
+def _convolve(images: Tensor, kernels: Tensor) -> Tensor:
+    """Full linear convolution of (B, H, W) images with (B, Hk, Wk) kernels via FFT: (B, H+Hk-1, W+Wk-1)."""
+    size = (images.shape[-2] + kernels.shape[-2] - 1, images.shape[-1] + kernels.shape[-1] - 1)
+    spectrum = torch.fft.rfft2(images, s=size) * torch.fft.rfft2(kernels, s=size)
+    return torch.fft.irfft2(spectrum, s=size)
