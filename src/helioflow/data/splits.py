@@ -64,7 +64,8 @@ def assign_splits(azimuth_deg: np.ndarray, elevation_deg: np.ndarray, spec: dict
     ([a, b]; azimuth is compared linearly, without wrap-around). Of the remaining M positions,
     round(fraction * M) (at least 1 if fraction > 0 and M >= 2) are drawn with ``seed`` as
     "interpolation", only among positions strictly inside the remaining azimuth and elevation
-    ranges; the rest are "train". Raises ConfigError for an invalid spec, too few interior
+    ranges (a coordinate that does not vary, like the azimuth of an elevation scan, constrains
+    nothing); the rest are "train". Raises ConfigError for an invalid spec, too few interior
     positions for the requested fraction, or no train position left.
     """
     azimuth = np.asarray(azimuth_deg, dtype=np.float64)
@@ -98,7 +99,7 @@ def assign_splits(azimuth_deg: np.ndarray, elevation_deg: np.ndarray, spec: dict
         n_interp = max(n_interp, 1)
     if n_interp:
         az, el = azimuth[rest], elevation[rest]
-        interior = rest[(az > az.min()) & (az < az.max()) & (el > el.min()) & (el < el.max())]
+        interior = rest[_strictly_inside(az) & _strictly_inside(el)]
         if interior.size < n_interp:
             raise ConfigError(
                 f"interpolation.fraction = {fraction} asks for {n_interp} of {rest.size} non-extrapolation "
@@ -108,3 +109,10 @@ def assign_splits(azimuth_deg: np.ndarray, elevation_deg: np.ndarray, spec: dict
         # The extreme positions are never drawn, so train keeps the full range.
         labels[np.random.default_rng(seed).choice(interior, size=n_interp, replace=False)] = "interpolation"
     return labels
+
+
+def _strictly_inside(values: np.ndarray) -> np.ndarray:
+    """(N,) bool: value strictly between the min and max; all True when the values do not vary."""
+    if values.min() == values.max():
+        return np.ones(values.shape, dtype=bool)
+    return (values > values.min()) & (values < values.max())

@@ -30,7 +30,7 @@ class Target:
 
     @staticmethod
     def facing(center, towards, width: float, height: float, resolution=(64, 64), dtype=torch.float32) -> "Target":
-        """A target at `center` whose normal points horizontally... or in any direction: at `towards`."""
+        """A target at `center` (3,) m whose normal points at the ENU point `towards` (3,) m."""
         c = torch.as_tensor(center, dtype=dtype)
         return Target(c, normalize(torch.as_tensor(towards, dtype=dtype) - c), width, height, tuple(resolution))
 
@@ -69,3 +69,46 @@ def centroid(images: Tensor, target: Target) -> Tensor:
     u, v = target.pixel_centres(images.dtype, images.device)
     total = images.sum((-2, -1)).clamp_min(1e-30)
     return torch.stack(((images.sum(-2) * u).sum(-1) / total, (images.sum(-1) * v).sum(-1) / total), dim=-1)
+
+
+@dataclass(frozen=True)
+class Camera:
+    """The calibration camera: what turns the flux on the target into the measured image.
+
+    image = gain * blur(flux) + background + noise, clipped at 0.
+
+    Attributes:
+        gain: multiplies the flux (1).
+        background: constant added to every pixel (W/m^2 equivalent).
+        blur_px: std of an isotropic Gaussian blur (pixels); 0 = sharp.
+        noise: std of additive Gaussian noise as a fraction of each image's peak; 0 = none.
+        seed: seed of the noise.
+    """
+
+    gain: float = 1.0
+    background: float = 0.0
+    blur_px: float = 0.0
+    noise: float = 0.0
+    seed: int = 0
+
+    def apply(self, flux: Tensor) -> Tensor:
+        """(N, H, W) flux (W/m^2) -> (N, H, W) measured images (same unit), differentiable in the flux."""
+        image = gaussian_blur(flux, self.blur_px) * self.gain + self.background
+        if self.noise > 0:
+            generator = torch.Generator().manual_seed(self.seed)
+            peak = image.amax((-2, -1), keepdim=True)
+            noise = torch.randn(image.shape, generator=generator, dtype=image.dtype).to(image.device)
+            image = image + self.noise * peak * noise
+        return image.clamp_min(0.0)
+
+
+def gaussian_blur(images: Tensor, sigma_px: float) -> Tensor:
+    """(N, H, W) images blurred by a separable Gaussian of std sigma_px pixels (zero padding)."""
+    if sigma_px <= 0:
+        return images
+    radius = max(1, int(3 * sigma_px + 0.5))
+    x = torch.arange(-radius, radius + 1, dtype=images.dtype, device=images.device)
+    k = torch.exp(-0.5 * (x / sigma_px) ** 2)
+    k = k / k.sum()
+    out = torch.nn.functional.conv2d(images[:, None], k.view(1, 1, 1, -1), padding=(0, radius))
+    return torch.nn.functional.conv2d(out, k.view(1, 1, -1, 1), padding=(radius, 0))[:, 0]

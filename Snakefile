@@ -1,0 +1,18 @@
+# helioflow: heliostat focal spots from calibration images. See README.md.
+from snakemake.utils import min_version
+
+min_version("9.0")
+
+
+configfile: "config.yaml"
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/surfaces.smk"
+include: "workflow/rules/trace.smk"
+
+
+rule all:
+    default_target: True
+    input:
+        all_targets(config),

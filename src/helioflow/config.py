@@ -1,0 +1,157 @@
+"""Config: validation with clear messages, and the typed sections the rules work with.
+
+`validate_config` is what the Snakefile calls at parse time: JSON-schema checks (a wrong key or
+value names the key, the value and what is allowed) plus the cross-references a schema cannot
+express (a dataset's heliostat exists, effect names and parameters are in the registry).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from pathlib import Path
+
+import jsonschema
+import yaml
+
+from .errors import ConfigError
+from .physics.effects import check_effects
+
+SCHEMA_PATH = Path(__file__).resolve().parents[2] / "workflow" / "schemas" / "config.schema.yaml"
+
+
+def load_config(path: str | Path) -> dict:
+    """Read and validate a config YAML file; returns the config with schema defaults filled in."""
+    path = Path(path)
+    try:
+        config = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{path}: cannot read the config: {exc}") from None
+    return validate_config(config, source=str(path))
+
+
+def validate_config(config: dict, schema_path: str | Path = SCHEMA_PATH, source: str = "config") -> dict:
+    """Check a config dict; raise one ConfigError naming key, value and what is allowed.
+
+    Returns a deep copy with the schema's defaults filled in.
+    """
+    schema = yaml.safe_load(Path(schema_path).read_text())
+    validator = jsonschema.Draft7Validator(schema)
+    errors = sorted(validator.iter_errors(config), key=lambda e: (len(e.absolute_path), list(map(str, e.absolute_path))))
+    if errors:
+        raise ConfigError(f"{source}: {_describe(errors[0])}")
+    config = copy.deepcopy(config)
+    _fill_defaults(config, schema, schema)
+    _check_references(config, source)
+    return config
+
+
+def _describe(error: jsonschema.ValidationError) -> str:
+    """'key.path = value: what is allowed' for one schema error."""
+    key = ".".join(str(p) for p in error.absolute_path) or "(top level)"
+    rule, expected = error.validator, error.validator_value
+    if rule == "additionalProperties":
+        known = sorted(error.schema.get("properties", {}))
+        extra = sorted(set(error.instance) - set(known))
+        allowed = ", ".join(known) if known else "any name"
+        return f"{key}: unknown key {extra[0]!r}; allowed keys: {allowed}"
+    if rule == "required":
+        return f"{key}: missing key {error.message.split(' ')[0]}; required: {', '.join(expected)}"
+    value = f"{key} = {error.instance!r}"
+    if rule == "enum":
+        return f"{value}: allowed values are {', '.join(map(str, expected))}"
+    if rule in ("minimum", "exclusiveMinimum", "maximum", "exclusiveMaximum"):
+        sign = {"minimum": ">=", "exclusiveMinimum": ">", "maximum": "<=", "exclusiveMaximum": "<"}[rule]
+        hint = " (the sun must be above the horizon)" if "elevation" in key and "Minimum" in rule else ""
+        return f"{value}: expected a value {sign} {expected}{hint}"
+    if rule == "type":
+        return f"{value}: expected {expected if isinstance(expected, str) else ' or '.join(expected)}"
+    if rule in ("minItems", "maxItems"):
+        return f"{value}: expected {'at least' if rule == 'minItems' else 'at most'} {expected} items"
+    if rule == "oneOf":
+        return f"{value}: expected one of: " + "; ".join(_schema_text(s) for s in expected)
+    return f"{value}: {error.message}"
+
+
+def _schema_text(schema: dict) -> str:
+    if "const" in schema:
+        return repr(schema["const"])
+    if "$ref" in schema:
+        return schema["$ref"].rsplit("/", 1)[-1]
+    return schema.get("type", "value")
+
+
+def _fill_defaults(node, schema: dict, root: dict) -> None:
+    """Fill missing keys that have a schema default (objects only)."""
+    if "$ref" in schema:
+        schema = root["definitions"][schema["$ref"].rsplit("/", 1)[-1]]
+    if not isinstance(node, dict):
+        return
+    for key, sub in schema.get("properties", {}).items():
+        if key not in node and "default" in sub:
+            node[key] = copy.deepcopy(sub["default"])
+        if key in node:
+            _fill_defaults(node[key], sub, root)
+    extra = schema.get("additionalProperties")
+    if isinstance(extra, dict):
+        for key in set(node) - set(schema.get("properties", {})):
+            _fill_defaults(node[key], extra, root)
+
+
+_SUN_KEYS = {"scan": ("azimuth_deg", "elevation_deg", "n"), "hemisphere": ("azimuth_deg", "elevation_deg", "n"),
+             "list": ("positions_deg",)}
+
+
+def _check_references(config: dict, source: str) -> None:
+    check_effects(config["world"].get("effects"), f"{source}: world.effects", allow_fit=False)
+    check_effects(config["model"].get("effects"), f"{source}: model.effects", allow_fit=True)
+    if not any(abs(x) > 0 for x in config["target"]["normal"]):
+        raise ConfigError(f"{source}: target.normal = {config['target']['normal']}: expected a non-zero vector")
+    for name, ds in config["datasets"].items():
+        where = f"{source}: datasets.{name}"
+        if ds["heliostat"] not in config["heliostats"]:
+            known = ", ".join(config["heliostats"])
+            raise ConfigError(f"{where}.heliostat = {ds['heliostat']!r} is not a heliostat in config; known: {known}")
+        sun = ds["sun"]
+        for key in _SUN_KEYS[sun["kind"]]:
+            if key not in sun:
+                raise ConfigError(f"{where}.sun: kind {sun['kind']!r} needs key {key!r}")
+        scalar_az = isinstance(sun.get("azimuth_deg"), (int, float))
+        if sun["kind"] == "scan" and not scalar_az:
+            raise ConfigError(f"{where}.sun.azimuth_deg = {sun['azimuth_deg']!r}: a scan needs one azimuth (a number)")
+        if sun["kind"] == "hemisphere" and scalar_az:
+            raise ConfigError(f"{where}.sun.azimuth_deg = {sun['azimuth_deg']!r}: expected a range [min, max]")
+        check_effects(ds.get("world_effects"), f"{where}.world_effects", allow_fit=False)
+        if ds["trace"]["splat"] == "bilinear" and ds["trace"].get("rays", 0) <= 0:
+            raise ConfigError(f"{where}.trace.rays = {ds['trace'].get('rays')!r}: bilinear splatting needs rays > 0")
+
+
+@dataclass(frozen=True)
+class HeliostatSpec:
+    """A heliostat section of config: ideal geometry plus the scale and seed of its errors."""
+
+    name: str
+    position_m: tuple[float, float, float]
+    mount: str
+    rows: int
+    cols: int
+    width_m: float
+    height_m: float
+    gap_m: float
+    canting_focal_distance_m: float | None
+    facet_focal_length_m: float | None
+    control_points: int
+    deformation_mm: float
+    tracking_error_mrad: float
+    canting_error_mrad: float
+    seed: int
+
+    @staticmethod
+    def from_config(name: str, d: dict) -> "HeliostatSpec":
+        f = d["facets"]
+        return HeliostatSpec(
+            name, tuple(d["position_m"]), d["mount"], f["rows"], f["cols"], f["width_m"], f["height_m"],
+            f.get("gap_m", 0.0), d.get("canting_focal_distance_m"), d.get("facet_focal_length_m"),
+            d.get("control_points", 6), d.get("deformation_mm", 0.0), d.get("tracking_error_mrad", 0.0),
+            d.get("canting_error_mrad", 0.0), d.get("seed", 0),
+        )

@@ -1,0 +1,95 @@
+"""Heliostat geometry files: the true geometry of each configured heliostat (rule `surfaces`).
+
+Layout (schema ``helioflow.heliostat/1``), all in the heliostat frame (right, up, normal at rest):
+
+    position_m                (3,)      ENU position of the mirror centre / pivot, m
+    facets/translation_m      (F, 3)    facet centres, m
+    facets/size_m             (F, 2)    facet width, height, m
+    facets/normal             (F, 3)    ideal canted unit normals
+    facets/canting_error_mrad (F, 2)    tilt errors about facet right and up, mrad
+    surface/control_heights_mm (F, C, C) B-spline control-point heights, mm (rows top first)
+    tracking_error_mrad       (5,)      in the order of attribute `tracking_parameters`
+    attributes: mount, facet_focal_length_m (NaN = flat), tracking_parameters, spec (the config)
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict
+
+import numpy as np
+import torch
+
+from ..config import HeliostatSpec
+from ..physics.heliostat import TRACKING_PARAMETERS, Heliostat, facet_layout, on_axis_canting
+from .hdf5 import read_arrays, write_arrays
+
+SCHEMA = "helioflow.heliostat/1"
+
+
+def true_heliostat(spec: HeliostatSpec) -> Heliostat:
+    """Ideal geometry from the spec plus its seeded random errors (float64).
+
+    Control-point heights ~ N(0, deformation_mm), each tracking parameter ~ N(0,
+    tracking_error_mrad), each facet tilt ~ N(0, canting_error_mrad); one generator seeded by
+    spec.seed draws them in that order.
+    """
+    translation, size = facet_layout(spec.rows, spec.cols, spec.width_m, spec.height_m, spec.gap_m)
+    n_facets, c = len(translation), spec.control_points
+    rng = np.random.default_rng(spec.seed)
+    heights = rng.normal(0.0, spec.deformation_mm * 1e-3, (n_facets, c, c))
+    tracking = rng.normal(0.0, spec.tracking_error_mrad * 1e-3, len(TRACKING_PARAMETERS))
+    canting = rng.normal(0.0, spec.canting_error_mrad * 1e-3, (n_facets, 2))
+    t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
+    return Heliostat(
+        position=t(spec.position_m),
+        mount=spec.mount,
+        facet_translation=t(translation),
+        facet_size=t(size),
+        facet_normal=t(on_axis_canting(translation, spec.canting_focal_distance_m)),
+        facet_focal_length=spec.facet_focal_length_m,
+        control_heights=t(heights),
+        canting_error=t(canting),
+        tracking_error=t(tracking),
+    )
+
+
+def write_heliostat(path: str | os.PathLike, heliostat: Heliostat, spec: HeliostatSpec | None = None) -> None:
+    """Write a heliostat's geometry atomically (see the module docstring for the layout)."""
+    h = heliostat
+    arrays = {
+        "position_m": h.position,
+        "facets/translation_m": h.facet_translation,
+        "facets/size_m": h.facet_size,
+        "facets/normal": h.facet_normal,
+        "facets/canting_error_mrad": h.canting_error * 1e3,
+        "surface/control_heights_mm": h.control_heights * 1e3,
+        "tracking_error_mrad": h.tracking_error * 1e3,
+    }
+    attrs = {
+        "mount": h.mount,
+        "facet_focal_length_m": float("nan") if h.facet_focal_length is None else float(h.facet_focal_length),
+        "tracking_parameters": list(TRACKING_PARAMETERS),
+        "spec": asdict(spec) if spec is not None else {},
+    }
+    write_arrays(path, {k: v.detach().cpu().numpy().astype(np.float64) for k, v in arrays.items()}, attrs, SCHEMA)
+
+
+def read_heliostat(path: str | os.PathLike) -> Heliostat:
+    """Read a heliostat geometry file (float64 tensors); DataError names the file and missing key."""
+    required = ("position_m", "facets/translation_m", "facets/size_m", "facets/normal", "facets/canting_error_mrad",
+                "surface/control_heights_mm", "tracking_error_mrad")
+    arrays, attrs = read_arrays(path, SCHEMA, required)
+    t = lambda k, scale=1.0: torch.as_tensor(arrays[k] * scale, dtype=torch.float64)  # noqa: E731
+    focal = attrs["facet_focal_length_m"]
+    return Heliostat(
+        position=t("position_m"),
+        mount=attrs["mount"],
+        facet_translation=t("facets/translation_m"),
+        facet_size=t("facets/size_m"),
+        facet_normal=t("facets/normal"),
+        facet_focal_length=None if np.isnan(focal) else float(focal),
+        control_heights=t("surface/control_heights_mm", 1e-3),
+        canting_error=t("facets/canting_error_mrad", 1e-3),
+        tracking_error=t("tracking_error_mrad", 1e-3),
+    )

@@ -1,0 +1,25 @@
+# Validate the config at parse time and bind the package's pure helpers.
+import json
+import sys
+
+from helioflow.config import validate_config
+from helioflow.errors import ConfigError
+from helioflow.workflow import (
+    all_targets,
+    dataset_heliostat,
+    results_dir,
+    surfaces_params,
+    trace_params,
+)
+
+try:
+    config = validate_config(config, workflow.source_path("../schemas/config.schema.yaml"))
+except ConfigError as exc:
+    sys.exit(f"helioflow: config error: {exc}")
+
+RESULTS = results_dir(config)
+
+
+wildcard_constraints:
+    dataset=r"[A-Za-z0-9_-]+",
+    heliostat=r"[A-Za-z0-9_-]+",
