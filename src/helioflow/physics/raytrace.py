@@ -22,13 +22,14 @@ Splatting:
             It is evaluated on a half-pixel grid and tent-filtered, so both modes estimate the
             same image; noise-free with far fewer rays. Slope error enters isotropically (2 sigma).
 
-Random numbers come from a pool of sample rows drawn once per call from the seed; each
-(sun position, point) reads K consecutive rows from a random offset. A fixed seed gives identical
+Random numbers come from a cached pool of 2^20 sample rows; each (sun position, point) reads
+K consecutive rows from an offset drawn from the trace's seed. A fixed seed gives identical
 images; memory is bounded by `chunk_rays` whatever the ray count.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -43,6 +44,7 @@ from .target import Target
 
 SPLATS = ("bilinear", "kernel")
 POOL_SIZE = 2**20
+POOL_SEED = 20240815
 FOOTPRINT_SUPERSAMPLING = 3  # footprints are box-averaged over q x q points per pixel
 
 
@@ -86,7 +88,7 @@ def trace(
     splat: str = "bilinear",
     cells_per_side: int = 32,
     seed: int = 0,
-    chunk_rays: int = 2**21,
+    chunk_rays: int = 2**19,
     aim_point: Tensor | None = None,
 ) -> Tensor:
     """Flux images of heliostats on a target, one per sun position.
@@ -167,12 +169,19 @@ def _project(heliostat: Heliostat, samples, sun: Tensor, target: Target, aim: Te
     return _Rays(along, offset, jitter, power)
 
 
-def _pool(optics: Optics, n: int, generator: torch.Generator, dtype) -> Tensor:
-    """(6, n) random rows: sun deviation (2, rad), slope tilt (2, rad), cell jitter (2, in [-1, 1])."""
-    sun = sample_deviations(optics.sun, n, generator, dtype=torch.float64).T
-    slope = torch.randn(2, n, generator=generator, dtype=torch.float64) * optics.slope_error
+@functools.lru_cache(maxsize=4)
+def _pool(sun: SunShape, slope_error: float, n: int) -> Tensor:
+    """(6, n) float64 random rows: sun deviation (2, rad), slope tilt (2, rad), cell jitter (2, in [-1, 1]).
+
+    Drawn once per (sun shape, slope error, size) from a fixed seed and cached: drawing exact
+    Buie samples costs more than tracing them. A trace's seed picks where each surface point
+    reads in the pool, so different seeds still give independent-looking images.
+    """
+    generator = torch.Generator().manual_seed(POOL_SEED)
+    deviation = sample_deviations(sun, n, generator, dtype=torch.float64).T
+    slope = torch.randn(2, n, generator=generator, dtype=torch.float64) * slope_error
     jitter = torch.rand(2, n, generator=generator, dtype=torch.float64) * 2.0 - 1.0
-    return torch.cat((sun, slope, jitter)).to(dtype)
+    return torch.cat((deviation, slope, jitter))
 
 
 def _splat_bilinear(
@@ -182,8 +191,8 @@ def _splat_bilinear(
     n_sun, n_points = c.power.shape
     dtype, device = c.power.dtype, c.power.device
     per_point = max(1, math.ceil(rays / n_points))
-    pool_size = min(POOL_SIZE, 1 << max(per_point * n_points - 1, 1).bit_length())
-    pool = _pool(optics, pool_size, generator, dtype).to(device)
+    pool_size = POOL_SIZE
+    pool = _pool(optics.sun, float(optics.slope_error), pool_size).to(device=device, dtype=dtype)
     # Only the random components that do something are drawn: sun (0, 1), slope (2, 3), jitter (4, 5).
     active = [0, 1] * (optics.sun.kind != "point") + [2, 3] * (optics.slope_error > 0) + [4, 5]
     direction, position = _pixel_coefficients(c, target)
@@ -304,7 +313,9 @@ def _splat_kernel(c: _Rays, target: Target, optics: Optics, n_facets: int) -> Te
     inside = spread < min((rows + pad_r) * target.pixel_size[1], (cols + pad_c) * target.pixel_size[0])
     total = kernel.sum((-2, -1)) * target.pixel_area
     kernel = torch.where(inside[:, None, None], kernel / total[:, None, None].clamp_min(1e-30), kernel)
-    flux = _convolve(deposit, kernel)  # (S * F, Hc + 2 Jr, Wc + 2 Jc) centred on the canvas
+    # (S * F, Hc + 2 Jr, Wc + 2 Jc) centred on the canvas; both factors are >= 0, so the clamp only
+    # removes the FFT's round-off (which would otherwise leave tiny negative flux in the images).
+    flux = _convolve(deposit, kernel).clamp_min(0.0)
     jr, jc = rows + pad_r, cols + pad_c
     flux = flux[:, jr + pad_r : jr + pad_r + rows, jc + pad_c : jc + pad_c + cols]
     return flux.reshape(n_sun, n_facets, rows, cols).sum(1) * target.pixel_area
