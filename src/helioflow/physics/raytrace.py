@@ -45,7 +45,7 @@ from .target import Target
 SPLATS = ("bilinear", "kernel")
 POOL_SIZE = 2**20
 POOL_SEED = 20240815
-FOOTPRINT_SUPERSAMPLING = 3  # footprints are box-averaged over q x q points per pixel
+FOOTPRINT_SUPERSAMPLING = 2  # footprints are box-averaged over q x q points per pixel
 
 
 @dataclass(frozen=True)
@@ -288,7 +288,7 @@ def _splat_kernel(c: _Rays, target: Target, optics: Optics, n_facets: int) -> Te
     and the canvas is convolved (FFT) with the footprint of the facet's power-weighted mean ray.
     Flux from rays that land outside the canvas is not followed.
     """
-    density = radial_density(optics.sun, optics.slope_error)
+    density = _density_lookup(optics.sun, float(optics.slope_error))
     n_sun, n_points = c.power.shape
     rows, cols = target.resolution
     pad_r, pad_c = rows // 2, cols // 2
@@ -306,19 +306,49 @@ def _splat_kernel(c: _Rays, target: Target, optics: Optics, n_facets: int) -> Te
     weight = weight / weight.sum(-1, keepdim=True).clamp_min(1e-30)
     unit = (weight[..., None] * (central / length[..., None]).reshape(n_sun, n_facets, -1, 3)).sum(2)
     path = (weight * (t[..., 0] * length).reshape(n_sun, n_facets, -1)).sum(-1)
-    kernel = _footprint(density, normalize(unit).reshape(-1, 3), path.reshape(-1), target, (rows + pad_r, cols + pad_c))
+    unit = normalize(unit).reshape(-1, 3)
+    path = path.reshape(-1)
+    # The footprint reaches at most support * path / cos(incidence on the target).
+    spread = support_radius(optics.sun, optics.slope_error) * path / unit[:, 0].abs()
+    pw, ph = target.pixel_size
+    widest = float(spread.detach().max()) if spread.numel() else 0.0
+    jr, jc = min(rows + pad_r, math.ceil(widest / ph) + 1), min(cols + pad_c, math.ceil(widest / pw) + 1)
+    kernel = _footprint(density, unit, path, target, (jr, jc))
     # A footprint that lies wholly inside the kernel window carries exactly the ray's power;
     # renormalising removes the lattice error of sampling a hard-edged sun disc on pixels.
-    spread = support_radius(optics.sun, optics.slope_error) * path.reshape(-1) / normalize(unit).reshape(-1, 3)[:, 0].abs()
-    inside = spread < min((rows + pad_r) * target.pixel_size[1], (cols + pad_c) * target.pixel_size[0])
+    inside = spread < min(jr * ph, jc * pw)
     total = kernel.sum((-2, -1)) * target.pixel_area
     kernel = torch.where(inside[:, None, None], kernel / total[:, None, None].clamp_min(1e-30), kernel)
     # (S * F, Hc + 2 Jr, Wc + 2 Jc) centred on the canvas; both factors are >= 0, so the clamp only
     # removes the FFT's round-off (which would otherwise leave tiny negative flux in the images).
     flux = _convolve(deposit, kernel).clamp_min(0.0)
-    jr, jc = rows + pad_r, cols + pad_c
     flux = flux[:, jr + pad_r : jr + pad_r + rows, jc + pad_c : jc + pad_c + cols]
     return flux.reshape(n_sun, n_facets, rows, cols).sum(1) * target.pixel_area
+
+
+@functools.lru_cache(maxsize=8)
+def _density_table(sun: SunShape, slope_error: float, n: int = 8192) -> tuple[Tensor, float]:
+    """(n,) float64 values of the beam-spread density (1/sr) on a uniform angle grid from 0 to the
+    support radius, and the grid step (rad); cached per sun shape and slope error."""
+    radius = support_radius(sun, slope_error)
+    theta = torch.linspace(0.0, radius, n, dtype=torch.float64)
+    return radial_density(sun, slope_error)(theta), radius / (n - 1)
+
+
+def _density_lookup(sun: SunShape, slope_error: float) -> Callable[[Tensor], Tensor]:
+    """theta (rad, any shape) -> density (1/sr) by linear interpolation in the cached table."""
+    table, step = _density_table(sun, slope_error)
+
+    def density(theta: Tensor) -> Tensor:
+        values = table.to(device=theta.device, dtype=theta.dtype)
+        x = (theta / step).clamp(max=len(table) - 1.0)
+        i = x.detach().floor().clamp(max=len(table) - 2.0)
+        w = x - i
+        i = i.long()
+        value = torch.take(values, i) * (1 - w) + torch.take(values, i + 1) * w
+        return torch.where(theta / step > len(table) - 1, 0.0, value)
+
+    return density
 
 
 def _footprint(density, unit: Tensor, path: Tensor, target: Target, reach: tuple[int, int]) -> Tensor:
