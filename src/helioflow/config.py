@@ -62,7 +62,9 @@ def _describe(error: jsonschema.ValidationError) -> str:
         return f"{value}: allowed values are {', '.join(map(str, expected))}"
     if rule in ("minimum", "exclusiveMinimum", "maximum", "exclusiveMaximum"):
         sign = {"minimum": ">=", "exclusiveMinimum": ">", "maximum": "<=", "exclusiveMaximum": "<"}[rule]
-        hint = " (the sun must be above the horizon)" if "elevation" in key and "Minimum" in rule else ""
+        path = list(error.absolute_path)
+        elevation = "elevation" in key or (len(path) >= 3 and path[-3] == "positions_deg" and path[-1] == 1)
+        hint = " (the sun must be above the horizon)" if elevation and "Minimum" in rule else ""
         return f"{value}: expected a value {sign} {expected}{hint}"
     if rule == "type":
         return f"{value}: expected {expected if isinstance(expected, str) else ' or '.join(expected)}"

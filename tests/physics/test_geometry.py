@@ -66,7 +66,8 @@ def test_wgs84_to_enu_known_offsets():
     assert east == pytest.approx((n + alt0) * math.cos(math.radians(lat0)) * math.radians(0.001), abs=1e-4)
     assert abs(north) < 1e-3 and abs(up) < 1e-2
     # Altitude is up; the reference point itself is the origin; arrays keep their shape.
-    np.testing.assert_allclose(wgs84_to_enu(lat0, lon0, alt0 + 25.0, lat0, lon0, alt0), [0, 0, 25.0], atol=1e-6)
+    up25 = wgs84_to_enu(lat0, lon0, alt0 + 25.0, lat0, lon0, alt0)
+    np.testing.assert_allclose(up25, [0, 0, 25.0], atol=1e-6)
     np.testing.assert_allclose(wgs84_to_enu(lat0, lon0, alt0, lat0, lon0, alt0), [0, 0, 0], atol=1e-6)
     out = wgs84_to_enu(np.full((2, 3), lat0), np.full((2, 3), lon0), np.full((2, 3), alt0), lat0, lon0, alt0)
     assert out.shape == (2, 3, 3)

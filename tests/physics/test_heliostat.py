@@ -28,10 +28,12 @@ def make_heliostat(rows=2, cols=2, width=1.0, height=1.0, gap=0.02, focal=None, 
                    position=(0.0, 0.0, 0.0), mount="az_el", n_control=6, dtype=DT) -> Heliostat:
     tr, sz = facet_layout(rows, cols, width, height, gap)
     f = len(tr)
-    return Heliostat(torch.tensor(position, dtype=dtype), mount, torch.tensor(tr, dtype=dtype),
-                     torch.tensor(sz, dtype=dtype), torch.tensor(on_axis_canting(tr, canting), dtype=dtype), focal,
-                     torch.zeros(f, n_control, n_control, dtype=dtype), torch.zeros(f, 2, dtype=dtype),
-                     torch.zeros(5, dtype=dtype))
+    return Heliostat(
+        torch.tensor(position, dtype=dtype), mount, torch.tensor(tr, dtype=dtype),
+        torch.tensor(sz, dtype=dtype), torch.tensor(on_axis_canting(tr, canting), dtype=dtype), focal,
+        torch.zeros(f, n_control, n_control, dtype=dtype), torch.zeros(f, 2, dtype=dtype),
+        torch.zeros(5, dtype=dtype),
+    )
 
 
 def _upper_hemisphere(n: int, seed: int) -> torch.Tensor:
@@ -182,6 +184,7 @@ def test_facet_layout_and_canting_error_directions():
     e = 2e-3
     frames = facet_frames(normal, torch.tensor([[e, 0.0], [0.0, e]], dtype=DT))
     torch.testing.assert_close(frames.transpose(-1, -2) @ frames, torch.eye(3, dtype=DT).expand(2, 3, 3))
-    # canting_error[:, 0] moves the normal up (+y), canting_error[:, 1] moves it right (+x), by atan(e) ~ e rad.
-    assert frames[0, 1, 2].item() == pytest.approx(math.sin(math.atan(e)), rel=1e-9) and abs(frames[0, 0, 2]) < 1e-15
-    assert frames[1, 0, 2].item() == pytest.approx(math.sin(math.atan(e)), rel=1e-9) and abs(frames[1, 1, 2]) < 1e-15
+    # canting_error[:, 0] moves the normal up (+y), canting_error[:, 1] moves it right (+x), by atan(e) ~ e.
+    moved = math.sin(math.atan(e))
+    assert frames[0, 1, 2].item() == pytest.approx(moved, rel=1e-9) and abs(frames[0, 0, 2]) < 1e-15
+    assert frames[1, 0, 2].item() == pytest.approx(moved, rel=1e-9) and abs(frames[1, 1, 2]) < 1e-15

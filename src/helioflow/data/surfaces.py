@@ -22,6 +22,7 @@ import torch
 
 from ..config import HeliostatSpec
 from ..physics.heliostat import TRACKING_PARAMETERS, Heliostat, facet_layout, on_axis_canting
+from ..errors import DataError
 from .hdf5 import read_arrays, write_arrays
 
 SCHEMA = "helioflow.heliostat/1"
@@ -80,6 +81,9 @@ def read_heliostat(path: str | os.PathLike) -> Heliostat:
     required = ("position_m", "facets/translation_m", "facets/size_m", "facets/normal", "facets/canting_error_mrad",
                 "surface/control_heights_mm", "tracking_error_mrad")
     arrays, attrs = read_arrays(path, SCHEMA, required)
+    for key in ("mount", "facet_focal_length_m"):
+        if key not in attrs:
+            raise DataError(f"{path}: attribute {key!r} is missing; expected a heliostat geometry file from `surfaces`")
     t = lambda k, scale=1.0: torch.as_tensor(arrays[k] * scale, dtype=torch.float64)  # noqa: E731
     focal = attrs["facet_focal_length_m"]
     return Heliostat(

@@ -99,7 +99,8 @@ def facet_layout(rows: int, cols: int, width: float, height: float, gap: float) 
 
 def on_axis_canting(translation: np.ndarray, focal_distance: float | None) -> np.ndarray:
     """(F, 3) unit facet normals canted on-axis: each facet's normal points at the point 2 f on
-    the heliostat's optical axis, so the facets' centres lie on the paraboloid of focal length f.
+    the heliostat's optical axis, as the paraboloid of focal length f does at the facet centres
+    (the centres stay in the plane z = 0; the paraboloid's sag, millimetres, is neglected).
     None gives parallel (flat) facets."""
     if focal_distance is None:
         return np.tile([0.0, 0.0, 1.0], (len(translation), 1))

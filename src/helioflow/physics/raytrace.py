@@ -19,12 +19,16 @@ Splatting:
   kernel    each surface point's central ray deposits the analytic beam-spread footprint
             (sun shape convolved with the slope error, see sun.radial_density): flux density
             power * f(theta) * cos(gamma) / r^2 at the target, theta the angle off the central ray.
-            It is evaluated on a half-pixel grid and tent-filtered, so both modes estimate the
-            same image; noise-free with far fewer rays. Slope error enters isotropically (2 sigma).
+            Per facet the central rays are deposited bilinearly and convolved (FFT) with the
+            pixel-averaged footprint, so both modes estimate the same image; noise-free with far
+            fewer rays. Slope error enters isotropically (2 sigma), which overestimates the spread
+            across the plane of incidence by 1/cos(incidence) at oblique incidence.
 
-Random numbers come from a cached pool of 2^20 sample rows; each (sun position, point) reads
-K consecutive rows from an offset drawn from the trace's seed. A fixed seed gives identical
-images; memory is bounded by `chunk_rays` whatever the ray count.
+Random numbers come from a cached pool of 2^20 exact sample rows; each (sun position, point)
+reads K consecutive rows from an offset drawn from the trace's seed, and its sun and slope
+directions are turned by random angles and its jitter axes flipped at random (all three
+distributions are isotropic, so this is exact): seeds matter at any ray count. A fixed seed gives
+identical images; memory is bounded by `chunk_rays` whatever the ray count.
 """
 
 from __future__ import annotations
@@ -195,7 +199,7 @@ def _splat_bilinear(
     pool = _pool(optics.sun, float(optics.slope_error), pool_size).to(device=device, dtype=dtype)
     # Only the random components that do something are drawn: sun (0, 1), slope (2, 3), jitter (4, 5).
     active = [0, 1] * (optics.sun.kind != "point") + [2, 3] * (optics.slope_error > 0) + [4, 5]
-    direction, position = _pixel_coefficients(c, target)
+    direction, position = _randomly_turned(*_pixel_coefficients(c, target), generator)
     image = torch.zeros(n_sun, *target.resolution, dtype=dtype, device=device)
     k = torch.arange(per_point, device=device)
     points_per_chunk = max(1, chunk_rays // (per_point * n_sun))
@@ -234,8 +238,8 @@ def _deposit(col: Tensor, row: Tensor, power: Tensor, resolution: tuple[int, int
     row = row.clamp(0.0, rows + 1)
     col0, row0 = col.floor(), row.floor()
     wc, wr = col - col0, row - row0
-    base = torch.addcmul(col0, row0, torch.tensor(float(stride), dtype=col.dtype)).int()
-    base = (base + (torch.arange(n_images, device=col.device, dtype=torch.int32) * plane)[:, None]).reshape(-1)
+    base = torch.addcmul(col0, row0, torch.tensor(float(stride), dtype=col.dtype)).long()
+    base = (base + (torch.arange(n_images, device=col.device) * plane)[:, None]).reshape(-1)
     wc, wr, power = wc.reshape(-1), wr.reshape(-1), power.reshape(-1)
     pr1 = power * wr
     pr0 = power - pr1
@@ -267,6 +271,22 @@ def _pixel_coefficients(c: _Rays, target: Target) -> tuple[list[dict], list[dict
         direction.append(d)
         position.append({"base": c.offset[:, :, m, None] * scale[m] + shift[m],
                          4: c.jitter[:, :, 0, m, None] * scale[m], 5: c.jitter[:, :, 1, m, None] * scale[m]})
+    return direction, position
+
+
+def _randomly_turned(direction: list[dict], position: list[dict], generator: torch.Generator):
+    """Turn each (sun position, point)'s sun-deviation axes and slope-tilt axes by independent
+    random angles and flip its jitter axes at random; the draws it reads are isotropic, so the
+    ray distribution is unchanged while pool samples are never reused in the same orientation."""
+    shape = direction[0]["base"].shape
+    angle = torch.rand((2, *shape), generator=generator, dtype=torch.float64) * (2 * math.pi)
+    cos, sin = (f(angle).to(direction[0]["base"]) for f in (torch.cos, torch.sin))
+    flip = (torch.randint(0, 2, (2, *shape), generator=generator) * 2 - 1).to(direction[0]["base"])
+    for m in range(3):
+        d = direction[m]
+        for k, (i, j) in enumerate(((0, 1), (2, 3))):
+            d[i], d[j] = cos[k] * d[i] + sin[k] * d[j], cos[k] * d[j] - sin[k] * d[i]
+        position[m][4], position[m][5] = flip[0] * position[m][4], flip[1] * position[m][5]
     return direction, position
 
 

@@ -100,7 +100,8 @@ def reference_trace(
     # Facets.
     size = _np(helio64.facet_size)  # (F, 2)
     translation = _np(helio64.facet_translation)  # (F, 3)
-    frames = _np(facet_frames(helio64.facet_normal, helio64.canting_error))  # (F, 3, 3) cols right, up, normal
+    # (F, 3, 3), columns = facet right, up, normal in the heliostat frame
+    frames = _np(facet_frames(helio64.facet_normal, helio64.canting_error))
     control = _np(helio64.control_heights)  # (F, C, C) [row along up (top first), column along right]
     n_control = control.shape[-1]
     focal = heliostat.facet_focal_length
@@ -155,7 +156,8 @@ def reference_trace(
         dev = sample_deviations(optics.sun, n, torch_gen, dtype=torch.float64).numpy()  # (n, 2) rad
         dev_len = np.linalg.norm(dev, axis=1)
         dev_dir = np.where(dev_len[:, None] > 0, dev / np.maximum(dev_len, 1e-300)[:, None], 0.0)
-        to_sun = _rotate_towards(np.broadcast_to(sun, (n, 3)), dev_dir[:, :1] * e1 + dev_dir[:, 1:] * e2, dev_len)
+        towards = dev_dir[:, :1] * e1 + dev_dir[:, 1:] * e2
+        to_sun = _rotate_towards(np.broadcast_to(sun, (n, 3)), towards, dev_len)
         incoming = -to_sun
 
         # 4. slope error: the normal rotated by |b| towards b1 t1 + b2 t2, b ~ N(0, slope_error^2 I).
@@ -185,7 +187,8 @@ def reference_trace(
         power = np.where(hit_ok, power_per_ray * cos_incidence, 0.0)
         c0, r0 = np.floor(col), np.floor(row)
         fc, fr = col - c0, row - r0
-        for dr, dc, weight in ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc), (1, 0, fr * (1 - fc)), (1, 1, fr * fc)):
+        corners = ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc), (1, 0, fr * (1 - fc)), (1, 1, fr * fc))
+        for dr, dc, weight in corners:
             rr, cc = r0 + dr, c0 + dc
             inside = hit_ok & (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
             pixel = (rr[inside] * cols + cc[inside]).astype(np.int64)

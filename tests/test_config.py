@@ -1,0 +1,126 @@
+"""Config validation against workflow/schemas/config.schema.yaml: one clear ConfigError per mistake."""
+
+import copy
+from pathlib import Path
+
+import pytest
+import yaml
+
+from helioflow.config import load_config, validate_config
+from helioflow.errors import ConfigError
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = REPO / "tests" / "workflow" / "tiny_config.yaml"
+
+
+@pytest.fixture(scope="module")
+def raw():
+    return yaml.safe_load((REPO / "config.yaml").read_text())
+
+
+@pytest.fixture
+def config(raw):
+    return copy.deepcopy(raw)
+
+
+@pytest.mark.parametrize("path", [REPO / "config.yaml", TINY], ids=["config.yaml", "tiny_config.yaml"])
+def test_shipped_configs_validate(path):
+    config = load_config(path)
+    assert config["datasets"] and config["heliostats"]
+
+
+def _set(path: str, value):
+    def edit(c):
+        *keys, last = path.split(".")
+        node = c
+        for k in keys:
+            node = node[k]
+        node[last] = value
+    return edit
+
+
+# (edit, substrings the message must contain: key path, bad value, what is allowed)
+CASES = {
+    "unknown top-level key": (_set("colour", "red"),
+                              ["(top level)", "'colour'", "allowed keys:", "datasets"]),
+    "unknown heliostat key": (_set("heliostats.square.height", 2.0),
+                              ["heliostats.square", "'height'", "allowed keys:", "position_m"]),
+    "unknown facets key": (_set("heliostats.square.facets.depth_m", 0.1),
+                           ["heliostats.square.facets", "'depth_m'", "width_m"]),
+    "mount enum": (_set("heliostats.square.mount", "foo"),
+                   ["heliostats.square.mount", "'foo'", "az_el, juelich"]),
+    "device enum": (_set("device", "gpu"), ["device", "'gpu'", "cpu, cuda, auto"]),
+    "splat enum": (_set("datasets.semi_sphere.trace.splat", "nearest"),
+                   ["datasets.semi_sphere.trace.splat", "'nearest'", "bilinear, kernel"]),
+    "negative facet width": (_set("heliostats.multi_facet.facets.width_m", -0.8),
+                             ["heliostats.multi_facet.facets.width_m", "-0.8", "> 0"]),
+    "scan below the horizon": (_set("datasets.sanity_check.sun.elevation_deg", [-5.0, 80.0]),
+                               ["datasets.sanity_check.sun.elevation_deg", "-5.0", "> 0", "horizon"]),
+    "list position below the horizon": (
+        _set("datasets.sanity_check.sun", {"kind": "list", "positions_deg": [[0.0, 30.0], [10.0, -2.0]]}),
+        ["datasets.sanity_check.sun.positions_deg.1.1", "-2.0", "> 0", "horizon"]),
+    "elevation above zenith": (_set("datasets.semi_sphere.sun.elevation_deg", [10.0, 95.0]),
+                               ["datasets.semi_sphere.sun.elevation_deg.1", "95.0", "<= 90"]),
+    "unknown heliostat in a dataset": (_set("datasets.sanity_check.heliostat", "round"),
+                                       ["datasets.sanity_check.heliostat", "'round'", "square, multi_facet"]),
+    "unknown effect": (_set("world.effects.wind", {}), ["world.effects", "'wind'", "sunshape", "camera"]),
+    "unknown effect in a dataset": (_set("datasets.semi_sphere.world_effects.dust", {}),
+                                    ["datasets.semi_sphere.world_effects", "'dust'", "attenuation"]),
+    "unknown effect parameter": (_set("world.effects.slope_error.rms_mrad", 1.0),
+                                 ["world.effects.slope_error", "'rms_mrad'", "sigma_mrad"]),
+    "effect parameter out of range": (_set("world.effects.slope_error.sigma_mrad", 50.0),
+                                      ["world.effects.slope_error.sigma_mrad", "50.0", "20.0"]),
+    "fit in world effects": (_set("world.effects.slope_error.sigma_mrad", "fit"),
+                             ["world.effects.slope_error.sigma_mrad", "'fit'", "model"]),
+    "fit in dataset world effects": (_set("datasets.sanity_check.world_effects.sunshape.csr", "fit"),
+                                     ["datasets.sanity_check.world_effects.sunshape.csr", "'fit'", "model"]),
+    "wrong type": (_set("seed", "forty-two"), ["seed", "'forty-two'", "integer"]),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_a_bad_value_gives_one_clear_config_error(config, case):
+    edit, expected = CASES[case]
+    edit(config)
+    with pytest.raises(ConfigError) as exc:
+        validate_config(config)
+    message = str(exc.value)
+    assert "\n" not in message
+    for text in expected:
+        assert text in message, f"{text!r} not in {message!r}"
+
+
+def test_fit_is_allowed_in_the_model(config):
+    config["model"]["effects"] = {"sunshape": {"kind": "buie", "csr": "fit"},
+                                  "slope_error": {"sigma_mrad": "fit"}}
+    validate_config(config)
+    config["model"]["effects"]["sunshape"]["kind"] = "fit"  # not a fittable parameter
+    with pytest.raises(ConfigError, match="model.effects.sunshape.kind"):
+        validate_config(config)
+
+
+def test_defaults_are_filled_and_the_input_is_not_changed(config):
+    h = config["heliostats"]["square"]
+    del h["facets"]["gap_m"], h["seed"], h["control_points"], h["deformation_mm"]
+    del config["datasets"]["semi_sphere"]["window_m"]
+    before = copy.deepcopy(config)
+    filled = validate_config(config)
+    assert config == before
+    fh = filled["heliostats"]["square"]
+    assert fh["facets"]["gap_m"] == 0.0
+    assert (fh["seed"], fh["control_points"], fh["deformation_mm"]) == (0, 6, 0.0)
+    assert filled["datasets"]["semi_sphere"]["window_m"] == "auto"
+    assert filled["heliostats"]["multi_facet"]["facets"]["gap_m"] == 0.02  # given values kept
+
+
+def test_load_config_names_the_file(tmp_path):
+    with pytest.raises(ConfigError, match="missing.yaml"):
+        load_config(tmp_path / "missing.yaml")
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("experiment: [unclosed\n")
+    with pytest.raises(ConfigError, match="broken.yaml"):
+        load_config(broken)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text((REPO / "config.yaml").read_text().replace("device: cpu", "device: gpu"))
+    with pytest.raises(ConfigError, match=r"bad.yaml: device = 'gpu'"):
+        load_config(bad)
