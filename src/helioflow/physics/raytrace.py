@@ -399,6 +399,20 @@ def _footprint(density, unit: Tensor, path: Tensor, target: Target, reach: tuple
 
 def _convolve(images: Tensor, kernels: Tensor) -> Tensor:
     """Full linear convolution of (B, H, W) images with (B, Hk, Wk) kernels via FFT: (B, H+Hk-1, W+Wk-1)."""
-    size = (images.shape[-2] + kernels.shape[-2] - 1, images.shape[-1] + kernels.shape[-1] - 1)
+    full = (images.shape[-2] + kernels.shape[-2] - 1, images.shape[-1] + kernels.shape[-1] - 1)
+    size = tuple(_fft_size(n) for n in full)
     spectrum = torch.fft.rfft2(images, s=size) * torch.fft.rfft2(kernels, s=size)
-    return torch.fft.irfft2(spectrum, s=size)
+    return torch.fft.irfft2(spectrum, s=size)[..., : full[0], : full[1]]
+
+
+def _fft_size(n: int) -> int:
+    """The smallest m >= n whose prime factors are 2, 3 and 5 (fast FFT lengths)."""
+    m = n
+    while True:
+        k = m
+        for p in (2, 3, 5):
+            while k % p == 0:
+                k //= p
+        if k == 1:
+            return m
+        m += 1
