@@ -8,6 +8,7 @@ import torch
 
 from helioflow.physics.geometry import normalize, sun_vector
 from helioflow.physics.heliostat import (
+    ideal_heliostat,
     MOUNTS,
     REST_FRAME,
     Heliostat,
@@ -26,14 +27,7 @@ DT = torch.float64
 
 def make_heliostat(rows=2, cols=2, width=1.0, height=1.0, gap=0.02, focal=None, canting=None,
                    position=(0.0, 0.0, 0.0), mount="az_el", n_control=6, dtype=DT) -> Heliostat:
-    tr, sz = facet_layout(rows, cols, width, height, gap)
-    f = len(tr)
-    return Heliostat(
-        torch.tensor(position, dtype=dtype), mount, torch.tensor(tr, dtype=dtype),
-        torch.tensor(sz, dtype=dtype), torch.tensor(on_axis_canting(tr, canting), dtype=dtype), focal,
-        torch.zeros(f, n_control, n_control, dtype=dtype), torch.zeros(f, 2, dtype=dtype),
-        torch.zeros(5, dtype=dtype),
-    )
+    return ideal_heliostat(rows, cols, width, height, gap, position, mount, canting, focal, n_control, dtype)
 
 
 def _upper_hemisphere(n: int, seed: int) -> torch.Tensor:

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from helioflow.physics.geometry import normalize, sun_vector
-from helioflow.physics.heliostat import Heliostat, facet_layout, on_axis_canting
+from helioflow.physics.heliostat import Heliostat, ideal_heliostat
 from helioflow.physics.raytrace import Optics, trace
 from helioflow.physics.reference import reference_trace
 from helioflow.physics.sun import SunShape
@@ -25,14 +25,7 @@ NEAR_NORMAL = (0.0, math.radians(34.0))  # sun azimuth, elevation (rad): inciden
 
 def make_heliostat(rows=2, cols=2, width=1.0, height=1.0, gap=0.02, focal=None, canting=None,
                    position=(0.0, 0.0, 0.0), mount="az_el", n_control=6, dtype=DT) -> Heliostat:
-    tr, sz = facet_layout(rows, cols, width, height, gap)
-    f = len(tr)
-    return Heliostat(
-        torch.tensor(position, dtype=dtype), mount, torch.tensor(tr, dtype=dtype),
-        torch.tensor(sz, dtype=dtype), torch.tensor(on_axis_canting(tr, canting), dtype=dtype), focal,
-        torch.zeros(f, n_control, n_control, dtype=dtype), torch.zeros(f, 2, dtype=dtype),
-        torch.zeros(5, dtype=dtype),
-    )
+    return ideal_heliostat(rows, cols, width, height, gap, position, mount, canting, focal, n_control, dtype)
 
 
 def _sun(az: float, el: float) -> tuple[torch.Tensor, torch.Tensor]:

@@ -15,13 +15,13 @@ Layout (schema ``helioflow.heliostat/1``), all in the heliostat frame (right, up
 from __future__ import annotations
 
 import os
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 import numpy as np
 import torch
 
 from ..config import HeliostatSpec
-from ..physics.heliostat import TRACKING_PARAMETERS, Heliostat, facet_layout, on_axis_canting
+from ..physics.heliostat import TRACKING_PARAMETERS, Heliostat, ideal_heliostat
 from ..errors import DataError
 from .hdf5 import read_arrays, write_arrays
 
@@ -35,24 +35,15 @@ def true_heliostat(spec: HeliostatSpec) -> Heliostat:
     tracking_error_mrad), each facet tilt ~ N(0, canting_error_mrad); one generator seeded by
     spec.seed draws them in that order.
     """
-    translation, size = facet_layout(spec.rows, spec.cols, spec.width_m, spec.height_m, spec.gap_m)
-    n_facets, c = len(translation), spec.control_points
+    ideal = ideal_heliostat(spec.rows, spec.cols, spec.width_m, spec.height_m, spec.gap_m, spec.position_m, spec.mount,
+                            spec.canting_focal_distance_m, spec.facet_focal_length_m, spec.control_points)
+    n_facets, c = ideal.n_facets, spec.control_points
     rng = np.random.default_rng(spec.seed)
     heights = rng.normal(0.0, spec.deformation_mm * 1e-3, (n_facets, c, c))
     tracking = rng.normal(0.0, spec.tracking_error_mrad * 1e-3, len(TRACKING_PARAMETERS))
     canting = rng.normal(0.0, spec.canting_error_mrad * 1e-3, (n_facets, 2))
     t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
-    return Heliostat(
-        position=t(spec.position_m),
-        mount=spec.mount,
-        facet_translation=t(translation),
-        facet_size=t(size),
-        facet_normal=t(on_axis_canting(translation, spec.canting_focal_distance_m)),
-        facet_focal_length=spec.facet_focal_length_m,
-        control_heights=t(heights),
-        canting_error=t(canting),
-        tracking_error=t(tracking),
-    )
+    return replace(ideal, control_heights=t(heights), canting_error=t(canting), tracking_error=t(tracking))
 
 
 def write_heliostat(path: str | os.PathLike, heliostat: Heliostat, spec: HeliostatSpec | None = None) -> None:

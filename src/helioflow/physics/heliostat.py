@@ -108,6 +108,40 @@ def on_axis_canting(translation: np.ndarray, focal_distance: float | None) -> np
     return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
 
+def ideal_heliostat(
+    rows: int = 1,
+    cols: int = 1,
+    width: float = 1.0,
+    height: float = 1.0,
+    gap: float = 0.0,
+    position=(0.0, 0.0, 0.0),
+    mount: str = "az_el",
+    canting_focal_distance: float | None = None,
+    facet_focal_length: float | None = None,
+    control_points: int = 6,
+    dtype=torch.float64,
+) -> Heliostat:
+    """A heliostat of rows x cols equal facets (m) at an ENU `position`, with no errors.
+
+    canting_focal_distance: on-axis canting distance (m), None = parallel facets;
+    facet_focal_length: paraboloid facets (m), None = flat; control_points: B-spline grid per side.
+    """
+    translation, size = facet_layout(rows, cols, width, height, gap)
+    n = len(translation)
+    t = lambda a: torch.as_tensor(a, dtype=dtype)  # noqa: E731
+    return Heliostat(
+        position=t(position),
+        mount=mount,
+        facet_translation=t(translation),
+        facet_size=t(size),
+        facet_normal=t(on_axis_canting(translation, canting_focal_distance)),
+        facet_focal_length=facet_focal_length,
+        control_heights=torch.zeros(n, control_points, control_points, dtype=dtype),
+        canting_error=torch.zeros(n, 2, dtype=dtype),
+        tracking_error=torch.zeros(len(TRACKING_PARAMETERS), dtype=dtype),
+    )
+
+
 def facet_frames(facet_normal: Tensor, canting_error: Tensor) -> Tensor:
     """(F, 3, 3) facet frames in the heliostat frame: columns = facet right, up, normal.
 

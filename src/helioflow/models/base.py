@@ -1,0 +1,83 @@
+"""What every focal-spot model is: the interface the training loop and the evaluation use.
+
+Images inside the models are normalised: divided by the maximum of the training dataset's
+images (one scale for the whole dataset, stored with the model), so values lie in [0, ~1].
+Sun positions enter in degrees and are encoded by :func:`sun_features`.
+"""
+
+from __future__ import annotations
+
+from abc import ABCMeta, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+
+@dataclass
+class TrainingData:
+    """The train split of a dataset, normalised.
+
+    Attributes:
+        images: (N, H, W) float32 images divided by `scale`.
+        azimuth_deg, elevation_deg: (N,) float32 sun positions (deg).
+        scale: the dataset's maximum flux (W/m^2) that the images were divided by.
+    """
+
+    images: Tensor
+    azimuth_deg: Tensor
+    elevation_deg: Tensor
+    scale: float
+
+    def batch(self, index: Tensor) -> dict[str, Tensor]:
+        """{'images': (B, H, W), 'azimuth_deg': (B,), 'elevation_deg': (B,)} for the given indices."""
+        return {"images": self.images[index], "azimuth_deg": self.azimuth_deg[index],
+                "elevation_deg": self.elevation_deg[index]}
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+
+def sun_features(azimuth_deg: Tensor, elevation_deg: Tensor) -> Tensor:
+    """(N,) sun positions (deg) -> (N, 3) unit vectors towards the sun (ENU), the continuous
+    encoding the conditioned networks use (no wrap-around at +-180 deg)."""
+    az, el = torch.deg2rad(azimuth_deg), torch.deg2rad(elevation_deg)
+    return torch.stack((torch.cos(el) * torch.sin(az), -torch.cos(el) * torch.cos(az), torch.sin(el)), dim=-1)
+
+
+class SpotModel(nn.Module, metaclass=ABCMeta):
+    """A model that predicts normalised focal-spot images from sun positions.
+
+    Subclasses set `name` and `controllable`, store `image_shape` (H, W) and `config` (their
+    config dataclass) in __init__(config, image_shape), and implement `configure_optimizers`,
+    `training_step` and `predict`. A model that needs no gradient training (the nearest
+    baseline) returns no optimizers and the loop runs no steps.
+    """
+
+    name: str = "model"
+    controllable: bool = True
+
+    def prepare(self, data: TrainingData) -> None:
+        """Look at the training data once before training (e.g. keep it, or size the scene)."""
+
+    @abstractmethod
+    def configure_optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        """Named optimizers; their states are checkpointed by the training loop."""
+
+    @abstractmethod
+    def training_step(self, batch: dict[str, Tensor], optimizers: dict, generator: torch.Generator) -> dict[str, float]:
+        """One optimisation step on a batch (does backward and optimizer steps itself).
+
+        `generator` is seeded from (seed, step), so a resumed run repeats the same randomness.
+        Returns the named losses of the step (floats) for the progress bar and the curve.
+        """
+
+    @abstractmethod
+    def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor, generator: torch.Generator) -> Tensor:
+        """(N,) sun positions (deg) -> (N, H, W) normalised images. An unconditioned model
+        ignores the positions and returns N samples. Called under torch.no_grad()."""
+
+
+def to_numpy(x: Tensor) -> np.ndarray:
+    return x.detach().cpu().numpy()

@@ -1,0 +1,43 @@
+"""`nearest`: the training image whose sun position is closest — what learning nothing scores."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from .base import SpotModel, TrainingData, sun_features
+
+
+@dataclass(frozen=True)
+class NearestConfig:
+    """No settings: the prediction for a sun position is the training image with the smallest
+    angle between its sun direction and the requested one."""
+
+
+class Nearest(SpotModel):
+    name = "nearest"
+    controllable = True
+
+    def __init__(self, config: NearestConfig, image_shape: tuple[int, int]):
+        super().__init__()
+        self.config = config
+        self.image_shape = image_shape
+        self.register_buffer("images", torch.zeros(0, *image_shape))
+        self.register_buffer("directions", torch.zeros(0, 3))
+
+    def prepare(self, data: TrainingData) -> None:
+        """Keep the training images (N, H, W) and their sun directions (N, 3)."""
+        self.images = data.images.clone()
+        self.directions = sun_features(data.azimuth_deg, data.elevation_deg)
+
+    def configure_optimizers(self) -> dict:
+        return {}
+
+    def training_step(self, batch, optimizers, generator) -> dict[str, float]:
+        return {}
+
+    def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor, generator: torch.Generator) -> Tensor:
+        cosines = sun_features(azimuth_deg, elevation_deg) @ self.directions.T  # (N, M)
+        return self.images[cosines.argmax(dim=1)]

@@ -1,0 +1,123 @@
+"""Network names -> config dataclass and model class; model files; the `train` rule's function."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..data.hdf5 import read_dataset
+from ..errors import ConfigError, DataError
+from .base import SpotModel, TrainingData
+from .training import LoopConfig, train, write_curve
+
+log = logging.getLogger(__name__)
+
+# network -> (module, config class, model class); modules are imported when first used.
+NETWORKS = {
+    "nearest": ("helioflow.models.nearest", "NearestConfig", "Nearest"),
+    "gan": ("helioflow.models.dcgan", "GanConfig", "DCGAN"),
+    "cgan": ("helioflow.models.cgan", "CganConfig", "ConditionalGAN"),
+    "nerf": ("helioflow.models.nerf", "NerfConfig", "SpotNeRF"),
+}
+LOOP_KEYS = ("steps", "batch_size", "checkpoint_every")
+MODEL_FORMAT = "helioflow.model/1"
+
+
+def network_classes(network: str) -> tuple[type, type]:
+    """(config dataclass, model class) of a network name."""
+    if network not in NETWORKS:
+        raise ConfigError(f"unknown network {network!r}; allowed: {', '.join(NETWORKS)}")
+    module, config_name, model_name = NETWORKS[network]
+    mod = importlib.import_module(module)
+    return getattr(mod, config_name), getattr(mod, model_name)
+
+
+def split_settings(network: str, settings: dict, seed: int) -> tuple[LoopConfig, object]:
+    """A network's config section -> (loop settings, the network's config dataclass).
+
+    Unknown keys raise ConfigError naming the key and the allowed ones.
+    """
+    config_cls, _ = network_classes(network)
+    fields = {f.name for f in dataclasses.fields(config_cls)}
+    for key in settings:
+        if key not in fields and key not in LOOP_KEYS:
+            allowed = ", ".join(sorted(fields | set(LOOP_KEYS) - ({"steps", "batch_size"} if network == "nearest" else set())))
+            raise ConfigError(f"networks.{network}: unknown setting {key!r}; allowed: {allowed}")
+    loop = LoopConfig(seed=seed, **{k: settings[k] for k in LOOP_KEYS if k in settings})
+    if network == "nearest":
+        loop = dataclasses.replace(loop, steps=0)
+    return loop, config_cls(**{k: v for k, v in settings.items() if k in fields})
+
+
+def training_data(dataset_path: str | os.PathLike, limit: int | None = None, seed: int = 0) -> TrainingData:
+    """The train split of a dataset file, normalised by its maximum.
+
+    Args:
+        limit: keep this many train images (a seeded random subset), for data-efficiency runs.
+    """
+    ds = read_dataset(dataset_path)
+    index = ds.indices("train")
+    if limit is not None:
+        if limit > len(index):
+            raise DataError(f"{dataset_path}: {limit} training images asked for, the train split has {len(index)}")
+        index = np.sort(np.random.default_rng(seed).choice(index, limit, replace=False))
+    images = torch.as_tensor(ds.images[index])
+    scale = float(images.max())
+    return TrainingData(images / scale, torch.as_tensor(ds.azimuth_deg[index], dtype=torch.float32),
+                        torch.as_tensor(ds.elevation_deg[index], dtype=torch.float32), scale)
+
+
+def train_network(network: str, settings: dict, dataset_path: str | os.PathLike, model_path: str | os.PathLike,
+                  curve_csv: str | os.PathLike, curve_png: str | os.PathLike, seed: int,
+                  train_images: int | None = None, progress: bool = True) -> SpotModel:
+    """The `train` rule: fit one network on a dataset's train split and write the model file.
+
+    The checkpoint `<model_path>.ckpt` lets an interrupted run resume; it is removed once the
+    model file is written.
+    """
+    loop, config = split_settings(network, settings, seed)
+    data = training_data(dataset_path, train_images, seed)
+    torch.manual_seed(seed)
+    _, model_cls = network_classes(network)
+    model = model_cls(config, tuple(data.images.shape[1:]))
+    model.prepare(data)
+    checkpoint = Path(str(model_path) + ".ckpt")
+    curve = train(model, data, loop, checkpoint, progress=progress)
+    save_model(model_path, model, network, config, data.scale, {"dataset": str(dataset_path), "train_images": len(data),
+                                                               "steps": loop.steps, "seed": seed})
+    write_curve(curve, curve_csv, curve_png, f"{network} on {Path(dataset_path).stem}")
+    checkpoint.unlink(missing_ok=True)
+    log.info("wrote %s (%d training images, %d steps)", model_path, len(data), loop.steps)
+    return model
+
+
+def save_model(path, model: SpotModel, network: str, config, scale: float, meta: dict) -> None:
+    """Atomically write a model file: network name, config, weights, image scale, metadata."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save({"format": MODEL_FORMAT, "network": network, "config": dataclasses.asdict(config),
+                "image_shape": tuple(model.image_shape), "state": model.state_dict(), "scale": scale,
+                "meta": meta}, tmp)
+    os.replace(tmp, path)
+
+
+def load_model(path: str | os.PathLike) -> tuple[SpotModel, dict]:
+    """(model in eval mode, file info) from a model file; DataError names the file when it is not one."""
+    try:
+        info = torch.load(path, weights_only=False, map_location="cpu")
+    except (OSError, RuntimeError, EOFError, ValueError) as exc:
+        raise DataError(f"{path} is not a readable helioflow model file: {exc}") from None
+    if not isinstance(info, dict) or info.get("format") != MODEL_FORMAT:
+        raise DataError(f"{path}: not a helioflow model file (expected format {MODEL_FORMAT})")
+    config_cls, model_cls = network_classes(info["network"])
+    model = model_cls(config_cls(**info["config"]), tuple(info["image_shape"]))
+    model.load_state_dict(info["state"])
+    model.eval()
+    return model, info

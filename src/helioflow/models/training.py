@@ -1,0 +1,132 @@
+"""The one training loop every network shares.
+
+Seeded (each step's batch and randomness come from a generator seeded by (seed, step), so a run
+resumed from a checkpoint repeats exactly what the uninterrupted run would have done), a tqdm
+progress bar with the losses, a checkpoint every `checkpoint_every` steps that the next call
+resumes from, one clear error on a NaN or exploding loss, and the training curve (CSV and PNG)
+saved beside the model.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from tqdm import tqdm
+
+from ..errors import HelioflowError
+from .base import SpotModel, TrainingData
+
+
+class TrainingDiverged(HelioflowError):
+    """The loss became NaN, infinite or exploded."""
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    """Settings of the loop itself (each network has its own config for the rest).
+
+    Attributes:
+        steps: optimisation steps.
+        batch_size: training images per step.
+        seed: seeds the model's initialisation and every step's randomness.
+        checkpoint_every: steps between checkpoints.
+        max_loss: a loss above this stops training as exploded.
+    """
+
+    steps: int = 1000
+    batch_size: int = 16
+    seed: int = 0
+    checkpoint_every: int = 200
+    max_loss: float = 1e6
+
+
+def step_generator(seed: int, step: int) -> torch.Generator:
+    """The generator of one step: the same (seed, step) always gives the same randomness."""
+    return torch.Generator().manual_seed(seed * 1_000_003 + step)
+
+
+def train(
+    model: SpotModel,
+    data: TrainingData,
+    loop: LoopConfig,
+    checkpoint_path: str | os.PathLike,
+    progress: bool = True,
+) -> list[dict[str, float]]:
+    """Train `model` on `data` for loop.steps steps, resuming from `checkpoint_path` if it exists.
+
+    The checkpoint (model and optimizer states, the step reached, the curve so far) is written
+    atomically every loop.checkpoint_every steps and at the end; delete it to start afresh.
+
+    Returns:
+        The training curve: one dict per step with 'step' and the step's named losses.
+    """
+    checkpoint_path = Path(checkpoint_path)
+    optimizers = model.configure_optimizers()
+    start, curve = 0, []
+    if checkpoint_path.exists():
+        state = torch.load(checkpoint_path, weights_only=False)
+        model.load_state_dict(state["model"])
+        for name, opt in optimizers.items():
+            opt.load_state_dict(state["optimizers"][name])
+        start, curve = state["step"], state["curve"]
+    model.train()
+    bar = tqdm(range(start, loop.steps), initial=start, total=loop.steps, disable=not progress,
+               desc=f"train {model.name}", mininterval=2.0)
+    for step in bar:
+        generator = step_generator(loop.seed, step)
+        index = torch.randint(0, len(data), (min(loop.batch_size, len(data)),), generator=generator)
+        losses = model.training_step(data.batch(index), optimizers, generator)
+        bad = {k: v for k, v in losses.items() if not math.isfinite(v) or abs(v) > loop.max_loss}
+        if bad:
+            raise TrainingDiverged(
+                f"training {model.name} diverged at step {step}: {bad} (limit {loop.max_loss:g}); "
+                "lower the learning rate or check the data; the last checkpoint is kept at "
+                f"{checkpoint_path}"
+            )
+        curve.append({"step": step, **losses})
+        bar.set_postfix({k: f"{v:.4g}" for k, v in losses.items()}, refresh=False)
+        if (step + 1) % loop.checkpoint_every == 0 or step + 1 == loop.steps:
+            save_checkpoint(checkpoint_path, model, optimizers, step + 1, curve)
+    model.eval()
+    return curve
+
+
+def save_checkpoint(path: Path, model: SpotModel, optimizers: dict, step: int, curve: list[dict]) -> None:
+    """Atomically write the resumable state."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save({"model": model.state_dict(), "optimizers": {k: o.state_dict() for k, o in optimizers.items()},
+                "step": step, "curve": curve}, tmp)
+    os.replace(tmp, path)
+
+
+def write_curve(curve: list[dict[str, float]], csv_path: str | os.PathLike, png_path: str | os.PathLike,
+                title: str) -> None:
+    """The training curve as CSV (step, losses...) and as a log-scale plot."""
+    from ..evaluate.figures import plt, save_figure
+
+    keys = sorted({k for row in curve for k in row} - {"step"})
+    Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(csv_path).with_name(Path(csv_path).name + ".tmp")
+    with open(tmp, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=["step", *keys])
+        writer.writeheader()
+        writer.writerows(curve)
+    os.replace(tmp, csv_path)
+    fig, ax = plt.subplots(figsize=(5, 3.2))
+    for k in keys:
+        steps = [row["step"] for row in curve if k in row]
+        values = [abs(row[k]) for row in curve if k in row]
+        ax.plot(steps, values, label=k, lw=0.8)
+    ax.set_yscale("log")
+    ax.set_xlabel("step")
+    ax.set_ylabel("loss")
+    ax.set_title(title, fontsize=9)
+    if keys:
+        ax.legend(fontsize=7)
+    save_figure(fig, png_path)
