@@ -54,10 +54,42 @@ def cmd_plot_dataset(args) -> None:
     logging.info("wrote %s", args.output)
 
 
+def cmd_train(args) -> None:
+    from .models.registry import train_network
+
+    spec = _spec(args, workflow.train_params)
+    train_network(spec["network"], spec["settings"], args.dataset, args.output, args.curve, args.curve_figure,
+                  seed=spec["seed"], train_images=spec["train_images"])
+
+
+def cmd_evaluate(args) -> None:
+    from .evaluate.evaluation import evaluate_model
+
+    spec = json.loads(args.spec) if args.spec else {}
+    result = evaluate_model(args.model, args.dataset, args.metrics, args.per_image, args.grid, args.psnr,
+                            gan_samples=spec.get("gan_samples", 64))
+    for split, m in result["splits"].items():
+        logging.info("%s: %s", split, m)
+
+
+def cmd_table(args) -> None:
+    from .evaluate.table import build_table
+
+    build_table(args.metrics, args.csv, args.markdown)
+    logging.info("wrote %s and %s", args.csv, args.markdown)
+
+
+def cmd_data_efficiency(args) -> None:
+    from .evaluate.efficiency import plot_data_efficiency
+
+    plot_data_efficiency(args.metrics, args.figure, args.csv)
+    logging.info("wrote %s and %s", args.figure, args.csv)
+
+
 def _with_spec(p: argparse.ArgumentParser) -> None:
     p.add_argument("--spec", help="the rule's parameters as JSON (what the Snakefile passes)")
     p.add_argument("--config", help="by hand: a config.yaml to take the parameters from")
-    p.add_argument("--name", help="by hand: the heliostat / dataset name in that config")
+    p.add_argument("--name", help="by hand: the heliostat / dataset / model name in that config")
 
 
 def parser() -> argparse.ArgumentParser:
@@ -76,6 +108,36 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--heliostat", required=True, help="surfaces/{heliostat}.h5 from `surfaces`")
     p.add_argument("--output", required=True, help="datasets/{dataset}.h5")
     p.set_defaults(func=cmd_trace)
+
+    p = sub.add_parser("train", help="train a network on a dataset's train split")
+    _with_spec(p)
+    p.add_argument("--dataset", required=True, help="datasets/{dataset}.h5")
+    p.add_argument("--output", required=True, help="models/{dataset}/{model}.pt")
+    p.add_argument("--curve", required=True, help="training curve CSV")
+    p.add_argument("--curve-figure", required=True, help="training curve PNG")
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("evaluate", help="score a model on every split of a dataset")
+    p.add_argument("--spec", help="evaluation settings as JSON, e.g. '{\"gan_samples\": 64}'")
+    p.add_argument("--model", required=True)
+    p.add_argument("--dataset", required=True)
+    p.add_argument("--metrics", required=True, help="JSON of the scores per split")
+    p.add_argument("--per-image", required=True, help="CSV of the scores per image")
+    p.add_argument("--grid", required=True, help="PNG: measured / predicted / difference")
+    p.add_argument("--psnr", required=True, help="PNG: PSNR against sun position")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("table", help="Table 1 from metrics files")
+    p.add_argument("--metrics", nargs="+", required=True)
+    p.add_argument("--csv", required=True)
+    p.add_argument("--markdown", required=True)
+    p.set_defaults(func=cmd_table)
+
+    p = sub.add_parser("data-efficiency", help="PSNR against the number of training images")
+    p.add_argument("--metrics", nargs="+", required=True)
+    p.add_argument("--figure", required=True)
+    p.add_argument("--csv", required=True)
+    p.set_defaults(func=cmd_data_efficiency)
 
     p = sub.add_parser("plot-dataset", help="figure of sample images of a dataset")
     p.add_argument("--dataset", required=True, help="datasets/{dataset}.h5")

@@ -109,6 +109,13 @@ def _check_references(config: dict, source: str) -> None:
     check_effects(config["model"].get("effects"), f"{source}: model.effects", allow_fit=True)
     if not any(abs(x) > 0 for x in config["target"]["normal"]):
         raise ConfigError(f"{source}: target.normal = {config['target']['normal']}: expected a non-zero vector")
+    from .models.registry import split_settings
+
+    for network, settings in (config.get("networks") or {}).items():
+        split_settings(network, settings or {}, config["seed"], where=f"{source}: networks.{network}")
+    for network in (config.get("data_efficiency") or {}).get("networks", []):
+        if network not in (config.get("networks") or {}):
+            raise ConfigError(f"{source}: data_efficiency.networks has {network!r}, which is not in networks")
     for name, ds in config["datasets"].items():
         where = f"{source}: datasets.{name}"
         if ds["heliostat"] not in config["heliostats"]:

@@ -71,7 +71,56 @@ def dataset_paths(config: dict) -> list[str]:
     return [f"{results_dir(config)}/datasets/{d}.h5" for d in config["datasets"]]
 
 
+def parse_model(model: str) -> tuple[str, int | None]:
+    """'cgan' -> ('cgan', None); 'cgan-n25' -> ('cgan', 25): a network trained on 25 train images."""
+    network, sep, count = model.partition("-n")
+    if sep and not count.isdigit():
+        raise ConfigError(f"model name {model!r}: expected <network> or <network>-n<train images>")
+    return network, int(count) if sep else None
+
+
+def models(config: dict) -> list[str]:
+    """Model names trained on every dataset: the networks, then the data-efficiency runs."""
+    names = list(config.get("networks") or {})
+    efficiency = config.get("data_efficiency") or {}
+    names += [f"{n}-n{k}" for n in efficiency.get("networks", []) for k in efficiency.get("train_images", [])]
+    return names
+
+
+def train_params(config: dict, model: str) -> dict:
+    """Parameters of rule `train`: the network, its settings section, the seed, the train subset."""
+    network, count = parse_model(model)
+    networks = config.get("networks") or {}
+    if network not in networks:
+        raise ConfigError(f"unknown network {network!r}: config networks has {', '.join(networks)}")
+    return {"network": network, "settings": copy.deepcopy(networks[network] or {}), "seed": config["seed"],
+            "train_images": count}
+
+
+def evaluate_params(config: dict) -> dict:
+    """Parameters of rule `evaluate`."""
+    return copy.deepcopy(config.get("evaluation") or {})
+
+
+def metrics_paths(config: dict, include_efficiency: bool = False) -> list[str]:
+    """metrics/<dataset>/<model>.json of every trained network (and data-efficiency run)."""
+    names = models(config) if include_efficiency else list(config.get("networks") or {})
+    return [f"{results_dir(config)}/metrics/{d}/{m}.json" for d in config["datasets"] for m in names]
+
+
+def efficiency_metrics(config: dict) -> list[str]:
+    """The metrics files the data-efficiency figure reads."""
+    plain = set(metrics_paths(config))
+    return [p for p in metrics_paths(config, include_efficiency=True) if p not in plain]
+
+
 def all_targets(config: dict) -> list[str]:
     """What `snakemake all` builds."""
-    figures = [f"{results_dir(config)}/figures/datasets/{d}.png" for d in config["datasets"]]
-    return dataset_paths(config) + figures
+    r = results_dir(config)
+    figures = [f"{r}/figures/datasets/{d}.png" for d in config["datasets"]]
+    targets = dataset_paths(config) + figures
+    if config.get("networks"):
+        targets += metrics_paths(config) + [f"{r}/tables/table1.md"]
+    if (config.get("data_efficiency") or {}).get("networks"):
+        targets += [f"{r}/figures/data_efficiency.png"]
+    return targets

@@ -85,3 +85,14 @@ def test_invalid_spec_is_config_error(bad):
     az, el = sun_grid(n=10)
     with pytest.raises(ConfigError, match="split spec"):
         assign_splits(az, el, bad, seed=0)
+
+
+def test_elevation_bands_hold_out_contiguous_gaps_inside_the_range():
+    el = np.linspace(5.0, 85.0, 81)
+    az = np.full_like(el, 10.0)
+    spec = {"extrapolation": {"elevation_above_deg": 75.0}, "interpolation": {"elevation_bands_deg": [[30, 35]]}}
+    labels = assign_splits(az, el, spec, seed=0)
+    assert set(el[labels == "interpolation"]) == {30.0, 31.0, 32.0, 33.0, 34.0, 35.0}
+    assert (labels[el > 75] == "extrapolation").all()
+    with pytest.raises(ConfigError, match="lowest or highest"):
+        assign_splits(az, el, {"interpolation": {"elevation_bands_deg": [[0, 10]]}}, seed=0)

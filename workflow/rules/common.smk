@@ -7,9 +7,13 @@ from helioflow.errors import ConfigError
 from helioflow.workflow import (
     all_targets,
     dataset_heliostat,
+    efficiency_metrics,
+    evaluate_params,
+    metrics_paths,
     results_dir,
     surfaces_params,
     trace_params,
+    train_params,
 )
 
 try:
@@ -23,3 +27,4 @@ RESULTS = results_dir(config)
 wildcard_constraints:
     dataset=r"[A-Za-z0-9_-]+",
     heliostat=r"[A-Za-z0-9_-]+",
+    model=r"[a-z]+(-n[0-9]+)?",

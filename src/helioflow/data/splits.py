@@ -14,7 +14,7 @@ from helioflow.errors import ConfigError
 
 _SPEC_KEYS = {
     "extrapolation": {"elevation_above_deg", "elevation_below_deg", "azimuth_outside_deg"},
-    "interpolation": {"fraction"},
+    "interpolation": {"fraction", "elevation_bands_deg"},
 }
 
 
@@ -45,6 +45,11 @@ def _check_spec(spec: dict) -> None:
         raise ConfigError(
             f"split spec extrapolation.azimuth_outside_deg = {window!r}; expected null or [min, max] degrees"
         )
+    bands = (spec.get("interpolation") or {}).get("elevation_bands_deg") or []
+    if not all(isinstance(b, (list, tuple)) and len(b) == 2 and b[0] < b[1] for b in bands):
+        raise ConfigError(
+            f"split spec interpolation.elevation_bands_deg = {bands!r}; expected a list of [low, high] degrees"
+        )
     fraction = (spec.get("interpolation") or {}).get("fraction", 0.0)
     if not isinstance(fraction, (int, float)) or not 0 <= fraction < 1:
         raise ConfigError(f"split spec interpolation.fraction = {fraction!r}; expected a number in [0, 1)")
@@ -65,7 +70,9 @@ def assign_splits(azimuth_deg: np.ndarray, elevation_deg: np.ndarray, spec: dict
     round(fraction * M) (at least 1 if fraction > 0 and M >= 2) are drawn with ``seed`` as
     "interpolation", only among positions strictly inside the remaining azimuth and elevation
     ranges (a coordinate that does not vary, like the azimuth of an elevation scan, constrains
-    nothing); the rest are "train". Raises ConfigError for an invalid spec, too few interior
+    nothing); the rest are "train". ``interpolation.elevation_bands_deg`` ([[low, high], ...])
+    additionally holds out every remaining position whose elevation lies in a band: contiguous
+    gaps inside the training range, which test interpolation across more than one sample step. Raises ConfigError for an invalid spec, too few interior
     positions for the requested fraction, or no train position left.
     """
     azimuth = np.asarray(azimuth_deg, dtype=np.float64)
@@ -94,6 +101,18 @@ def assign_splits(azimuth_deg: np.ndarray, elevation_deg: np.ndarray, spec: dict
             "no training position left (loosen the extrapolation criteria)"
         )
 
+    bands = (spec.get("interpolation") or {}).get("elevation_bands_deg") or []
+    in_band = np.zeros(rest.size, dtype=bool)
+    for low, high in bands:
+        in_band |= (elevation[rest] >= low) & (elevation[rest] <= high)
+    if in_band.any():
+        if in_band[np.argmin(elevation[rest])] or in_band[np.argmax(elevation[rest])]:
+            raise ConfigError(
+                f"interpolation.elevation_bands_deg = {bands}: a band holds the lowest or highest training "
+                "elevation, so it is not inside the training range"
+            )
+        labels[rest[in_band]] = "interpolation"
+        rest = rest[~in_band]
     n_interp = int(np.floor(fraction * rest.size + 0.5))
     if fraction > 0 and rest.size >= 2:
         n_interp = max(n_interp, 1)

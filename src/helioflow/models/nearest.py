@@ -24,13 +24,20 @@ class Nearest(SpotModel):
         super().__init__()
         self.config = config
         self.image_shape = image_shape
-        self.register_buffer("images", torch.zeros(0, *image_shape))
-        self.register_buffer("directions", torch.zeros(0, 3))
+        self.images = torch.zeros(0, *image_shape)  # (N, H, W) normalised training images
+        self.directions = torch.zeros(0, 3)  # (N, 3) their sun directions
 
     def prepare(self, data: TrainingData) -> None:
         """Keep the training images (N, H, W) and their sun directions (N, 3)."""
         self.images = data.images.clone()
         self.directions = sun_features(data.azimuth_deg, data.elevation_deg)
+
+    def get_extra_state(self) -> dict:
+        """The kept training data travels in the state dict (its size depends on the data)."""
+        return {"images": self.images, "directions": self.directions}
+
+    def set_extra_state(self, state: dict) -> None:
+        self.images, self.directions = state["images"], state["directions"]
 
     def configure_optimizers(self) -> dict:
         return {}

@@ -38,7 +38,7 @@ def network_classes(network: str) -> tuple[type, type]:
     return getattr(mod, config_name), getattr(mod, model_name)
 
 
-def split_settings(network: str, settings: dict, seed: int) -> tuple[LoopConfig, object]:
+def split_settings(network: str, settings: dict, seed: int, where: str | None = None) -> tuple[LoopConfig, object]:
     """A network's config section -> (loop settings, the network's config dataclass).
 
     Unknown keys raise ConfigError naming the key and the allowed ones.
@@ -47,12 +47,16 @@ def split_settings(network: str, settings: dict, seed: int) -> tuple[LoopConfig,
     fields = {f.name for f in dataclasses.fields(config_cls)}
     for key in settings:
         if key not in fields and key not in LOOP_KEYS:
-            allowed = ", ".join(sorted(fields | set(LOOP_KEYS) - ({"steps", "batch_size"} if network == "nearest" else set())))
-            raise ConfigError(f"networks.{network}: unknown setting {key!r}; allowed: {allowed}")
-    loop = LoopConfig(seed=seed, **{k: settings[k] for k in LOOP_KEYS if k in settings})
+            allowed = ", ".join(sorted(fields | set(LOOP_KEYS)))
+            raise ConfigError(f"{where or 'networks.' + network}: unknown setting {key!r}; allowed: {allowed}")
+    try:
+        loop = LoopConfig(seed=seed, **{k: settings[k] for k in LOOP_KEYS if k in settings})
+        config = config_cls(**{k: v for k, v in settings.items() if k in fields})
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{where or 'networks.' + network}: {exc}") from None
     if network == "nearest":
         loop = dataclasses.replace(loop, steps=0)
-    return loop, config_cls(**{k: v for k, v in settings.items() if k in fields})
+    return loop, config
 
 
 def training_data(dataset_path: str | os.PathLike, limit: int | None = None, seed: int = 0) -> TrainingData:

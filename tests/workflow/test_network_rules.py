@@ -1,0 +1,52 @@
+"""Rule helpers of the networks stage: model names, train parameters, targets."""
+
+import pytest
+
+from helioflow.config import load_config
+from helioflow.errors import ConfigError
+from helioflow.workflow import all_targets, efficiency_metrics, models, parse_model, train_params
+
+
+@pytest.fixture
+def config():
+    cfg = load_config("config.yaml")
+    cfg["networks"] = {"nearest": {}, "cgan": {"steps": 3}}
+    return cfg
+
+
+def test_parse_model_names():
+    assert parse_model("cgan") == ("cgan", None)
+    assert parse_model("nerf-n25") == ("nerf", 25)
+    with pytest.raises(ConfigError, match="nerf-nx"):
+        parse_model("nerf-nx")
+
+
+def test_train_params_hold_only_the_network_section(config):
+    p = train_params(config, "cgan-n50")
+    assert p == {"network": "cgan", "settings": {"steps": 3}, "seed": config["seed"], "train_images": 50}
+    config["networks"]["nearest"] = {"steps": 7}
+    assert train_params(config, "cgan") == {**p, "train_images": None}
+
+
+def test_unknown_network_is_named(config):
+    with pytest.raises(ConfigError, match="'gan'.*nearest, cgan"):
+        train_params(config, "gan")
+
+
+def test_targets_include_metrics_table_and_data_efficiency(config):
+    config["data_efficiency"] = {"networks": ["cgan"], "train_images": [25, 50]}
+    targets = all_targets(config)
+    assert "results/default/metrics/semi_sphere/cgan.json" in targets
+    assert "results/default/tables/table1.md" in targets
+    assert "results/default/figures/data_efficiency.png" in targets
+    assert models(config) == ["nearest", "cgan", "cgan-n25", "cgan-n50"]
+    assert efficiency_metrics(config) == [f"results/default/metrics/{d}/cgan-n{k}.json"
+                                          for d in ("sanity_check", "semi_sphere") for k in (25, 50)]
+
+
+def test_unknown_network_setting_stops_validation(config):
+    config["networks"]["cgan"] = {"stepz": 3}
+    from helioflow.config import validate_config
+
+    with pytest.raises(ConfigError, match="networks.cgan: unknown setting 'stepz'"):
+        validate_config(config)
