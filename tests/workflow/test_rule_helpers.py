@@ -120,6 +120,7 @@ def test_unknown_name_raises_config_error_listing_known_names(config, call, name
 
 
 def test_all_targets_are_datasets_and_figures_under_results_experiment(config):
+    config["networks"] = {}
     assert all_targets(config) == [
         "results/default/datasets/sanity_check.h5",
         "results/default/datasets/semi_sphere.h5",
