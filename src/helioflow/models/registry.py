@@ -77,6 +77,20 @@ def training_data(dataset_path: str | os.PathLike, limit: int | None = None, see
                         torch.as_tensor(ds.elevation_deg[index], dtype=torch.float32), scale)
 
 
+# config fields a network may take from the dataset's attributes when its settings leave them unset
+GEOMETRY_ATTRIBUTES = {"heliostat_position_m": "heliostat_position_m", "aim_point_m": "target_center_m",
+                       "target_normal": "target_normal"}
+
+
+def dataset_geometry(network: str, dataset_path: str | os.PathLike) -> dict:
+    """The scene geometry a network's config declares (e.g. the NeRF's heliostat position, aim
+    point and target normal), read from the dataset's attributes."""
+    config_cls, _ = network_classes(network)
+    fields = {f.name for f in dataclasses.fields(config_cls)}
+    attrs = read_dataset(dataset_path).attrs
+    return {k: tuple(attrs[a]) for k, a in GEOMETRY_ATTRIBUTES.items() if k in fields and a in attrs}
+
+
 def train_network(network: str, settings: dict, dataset_path: str | os.PathLike, model_path: str | os.PathLike,
                   curve_csv: str | os.PathLike, curve_png: str | os.PathLike, seed: int,
                   train_images: int | None = None, progress: bool = True) -> SpotModel:
@@ -85,7 +99,7 @@ def train_network(network: str, settings: dict, dataset_path: str | os.PathLike,
     The checkpoint `<model_path>.ckpt` lets an interrupted run resume; it is removed once the
     model file is written.
     """
-    loop, config = split_settings(network, settings, seed)
+    loop, config = split_settings(network, {**dataset_geometry(network, dataset_path), **settings}, seed)
     data = training_data(dataset_path, train_images, seed)
     torch.manual_seed(seed)
     _, model_cls = network_classes(network)
