@@ -153,7 +153,7 @@ class NerfConfig:
     lr: float = 1e-2
     lr_final: float = 2e-4
     warmup_steps: int = 100
-    decay_steps: int = 4500
+    decay_steps: int = 8000
     chunk: int = 8192
     mount: str = "az_el"
     heliostat_position_m: tuple[float, float, float] = (0.0, 60.0, 0.0)
@@ -200,7 +200,8 @@ def heliostat_rotation(mount: str, sun: Tensor, beam: Tensor) -> Tensor:
     mirror right, up, normal), through the mount's ideal kinematics."""
     angle1, angle2 = ideal_joint_angles(mount, mirror_normal(sun, beam))
     no_errors = torch.zeros(5, dtype=sun.dtype, device=sun.device)
-    return joint_rotation(mount, angle1, angle2, no_errors) @ REST_FRAME.to(dtype=sun.dtype, device=sun.device)
+    rest = REST_FRAME.to(dtype=sun.dtype, device=sun.device)
+    return joint_rotation(mount, angle1, angle2, no_errors) @ rest
 
 
 def camera_direction(rotation: Tensor, beam: Tensor) -> Tensor:
@@ -287,7 +288,8 @@ class SpotNeRF(SpotModel):
         self.register_buffer("levels", levels.float(), persistent=False)
         self.register_buffer("steps_done", torch.zeros((), dtype=torch.long))
         slant = float((aim - heliostat).norm())
-        self.focus = 0.0 if config.canting_focal_distance_m is None else slant / float(config.canting_focal_distance_m)
+        f = config.canting_focal_distance_m
+        self.focus = 0.0 if f is None else slant / float(f)  # k = L / f of the focusing map
         self.field = RadianceField(config)
 
     # geometry per image --------------------------------------------------------------------
@@ -323,7 +325,8 @@ class SpotNeRF(SpotModel):
             flux = (sigma * dt * intensity).sum(-1)
         else:
             alpha = 1 - torch.exp(-sigma * dt)
-            transmitted = torch.exp(-torch.cumsum(torch.cat((torch.zeros_like(sigma[:, :1]), sigma[:, :-1] * dt), 1), 1))
+            optical_depth = torch.cat((torch.zeros_like(sigma[:, :1]), sigma[:, :-1] * dt), 1).cumsum(1)
+            transmitted = torch.exp(-optical_depth)
             flux = (transmitted * alpha * intensity).sum(-1)
         return flux * views["gain"][image_index]
 
@@ -338,7 +341,8 @@ class SpotNeRF(SpotModel):
         warm = min((step + 1) / c.warmup_steps, 1.0)
         return warm * c.lr * (c.lr_final / c.lr) ** min(step / c.decay_steps, 1.0)
 
-    def training_step(self, batch: dict[str, Tensor], optimizers: dict, generator: torch.Generator) -> dict[str, float]:
+    def training_step(self, batch: dict[str, Tensor], optimizers: dict,
+                      generator: torch.Generator) -> dict[str, float]:
         images = batch["images"]
         n_images, n_pixels = images.shape[0], images.shape[1] * images.shape[2]
         flat = torch.randint(0, n_images * n_pixels, (self.config.rays,), generator=generator)
@@ -355,7 +359,8 @@ class SpotNeRF(SpotModel):
         self.steps_done += 1
         return {"loss": float(loss.detach())}
 
-    def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor, generator: torch.Generator | None = None) -> Tensor:
+    def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor,
+                generator: torch.Generator | None = None) -> Tensor:
         rows, cols = self.image_shape
         n_pixels = rows * cols
         with torch.no_grad():
