@@ -16,7 +16,8 @@ sampler; the adversarial term keeps the spot sharp. `predict` uses the fixed lat
 mean of the training noise N(0, 1)), so the same sun position always gives the same image.
 
 Measured on the 2-core development CPU (torch 2.13, batch 32, 64x64, default config): about
-0.06 s per training step (the DCGAN: about 0.05 s).
+0.06-0.07 s per training step with 2 threads on an idle machine, 0.075-0.085 s with 1 thread
+(the DCGAN: about 10 % less; see helioflow.models.dcgan on thread oversubscription).
 """
 
 from __future__ import annotations
@@ -39,8 +40,9 @@ class CganConfig(GanConfig):
 
     Attributes:
         lr: Adam learning rate of both networks; 1e-3 rather than DCGAN's 2e-4 because the L1
-            term makes the generator mostly a regressor (on sanity_check, 300 steps of batch
-            32: 40 dB interpolation PSNR at 1e-3, 21 dB at 2e-4).
+            term makes the generator mostly a regressor (on sanity_check, batch 32, interpolation
+            PSNR after 150 steps: 34 dB at 1e-3, 16 dB at 2e-4; after 300 steps at 1e-3: 35-40 dB,
+            varying with the initialisation and the thread count).
         cond_embed: width of the generator's embedding of the sun direction.
         l1_weight: weight of the L1 reconstruction term in the generator loss (0: a pure cGAN).
     """
@@ -71,7 +73,8 @@ class ConditionalGAN(SpotModel):
         real = batch["images"]
         condition = sun_features(batch["azimuth_deg"], batch["elevation_deg"])
         z = torch.randn(len(real), self.config.latent, generator=generator)
-        return adversarial_step(self.netG, self.netD, optimizers, real, z, condition, self.config.l1_weight)
+        return adversarial_step(self.netG, self.netD, optimizers, real, z, condition, self.config.l1_weight,
+                                self.config.real_label)
 
     def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor, generator: torch.Generator) -> Tensor:
         """(N, H, W) in [0, 1] from the fixed latent z = 0: deterministic, `generator` is unused.

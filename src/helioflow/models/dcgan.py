@@ -29,7 +29,9 @@ Training: the non-saturating GAN loss with BCE on logits, one discriminator then
 Adam step per batch; the latent noise comes from the step's torch.Generator.
 
 Measured on the 2-core development CPU (torch 2.13, batch 32, 64x64, default config): about
-0.05 s per training step (see the module docstring of helioflow.models.cgan for the cGAN).
+0.05 s per training step with 2 threads on an idle machine, 0.07-0.08 s with 1 thread; with
+2 threads while another job uses the cores, 0.2-3 s (thread oversubscription), so run parallel
+jobs with one torch thread each. The cGAN costs about 10 % more.
 """
 
 from __future__ import annotations
@@ -61,6 +63,8 @@ class GanConfig:
         lr: Adam learning rate of both networks (DCGAN: 2e-4).
         beta1: Adam beta1 (DCGAN: 0.5).
         beta2: Adam beta2.
+        real_label: the discriminator's target for real images; below 1 it is one-sided label
+            smoothing (Salimans et al. 2016), which keeps D from winning outright.
     """
 
     latent: int = 64
@@ -69,6 +73,7 @@ class GanConfig:
     lr: float = 2e-4
     beta1: float = 0.5
     beta2: float = 0.999
+    real_label: float = 1.0
 
 
 def halvings(image_shape: tuple[int, int]) -> int:
@@ -170,10 +175,12 @@ def adam_pair(netG: nn.Module, netD: nn.Module, config: GanConfig) -> dict[str, 
 
 
 def adversarial_step(netG: Generator, netD: Discriminator, optimizers: dict, real: Tensor, z: Tensor,
-                     condition: Tensor | None = None, l1_weight: float = 0.0) -> dict[str, float]:
+                     condition: Tensor | None = None, l1_weight: float = 0.0,
+                     real_label: float = 1.0) -> dict[str, float]:
     """One discriminator then one generator step with the non-saturating GAN loss.
 
-    D maximises log D(x) + log(1 - D(G(z))); G maximises log D(G(z)) (BCE with logits), plus
+    D maximises log D(x) + log(1 - D(G(z))) with the real target `real_label` (< 1: one-sided
+    label smoothing); G maximises log D(G(z)) (BCE with logits, target 1), plus
     `l1_weight` * mean |G(z, c) - x| when l1_weight > 0 (pix2pix; x is the real image of the
     same condition).
 
@@ -188,11 +195,11 @@ def adversarial_step(netG: Generator, netD: Discriminator, optimizers: dict, rea
     real = real[:, None]
     fake = netG(z, condition)[:, None]
 
-    # (1) discriminator: real -> 1, fake -> 0 (fake detached: no gradient into G)
+    # (1) discriminator: real -> real_label, fake -> 0 (fake detached: no gradient into G)
     opt_d.zero_grad(set_to_none=True)
     logit_real = netD(real, condition)
     logit_fake = netD(fake.detach(), condition)
-    loss_d = (F.binary_cross_entropy_with_logits(logit_real, torch.ones_like(logit_real))
+    loss_d = (F.binary_cross_entropy_with_logits(logit_real, torch.full_like(logit_real, real_label))
               + F.binary_cross_entropy_with_logits(logit_fake, torch.zeros_like(logit_fake)))
     loss_d.backward()
     opt_d.step()
@@ -231,7 +238,7 @@ class DCGAN(SpotModel):
     def training_step(self, batch: dict[str, Tensor], optimizers: dict, generator: torch.Generator) -> dict[str, float]:
         real = batch["images"]
         z = torch.randn(len(real), self.config.latent, generator=generator)
-        return adversarial_step(self.netG, self.netD, optimizers, real, z)
+        return adversarial_step(self.netG, self.netD, optimizers, real, z, real_label=self.config.real_label)
 
     def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor, generator: torch.Generator) -> Tensor:
         """N samples (N, H, W) in [0, 1], N = len(azimuth_deg); the positions are ignored."""
