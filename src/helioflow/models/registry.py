@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..data.hdf5 import read_dataset
+from ..data.hdf5 import CalibrationDataset, read_dataset
 from ..errors import ConfigError, DataError
 from .base import SpotModel, TrainingData
 from .training import LoopConfig, train, write_curve
@@ -59,13 +59,12 @@ def split_settings(network: str, settings: dict, seed: int, where: str | None = 
     return loop, config
 
 
-def training_data(dataset_path: str | os.PathLike, limit: int | None = None, seed: int = 0) -> TrainingData:
-    """The train split of a dataset file, normalised by its maximum.
+def training_data(ds: CalibrationDataset, dataset_path, limit: int | None = None, seed: int = 0) -> TrainingData:
+    """The train split of a dataset (read from `dataset_path`), normalised by its maximum.
 
     Args:
         limit: keep this many train images (a seeded random subset), for data-efficiency runs.
     """
-    ds = read_dataset(dataset_path)
     index = ds.indices("train")
     if limit is not None:
         if limit > len(index):
@@ -82,12 +81,11 @@ GEOMETRY_ATTRIBUTES = {"heliostat_position_m": "heliostat_position_m", "aim_poin
                        "target_normal": "target_normal"}
 
 
-def dataset_geometry(network: str, dataset_path: str | os.PathLike) -> dict:
+def dataset_geometry(network: str, attrs: dict) -> dict:
     """The scene geometry a network's config declares (e.g. the NeRF's heliostat position, aim
-    point and target normal), read from the dataset's attributes."""
+    point and target normal), taken from a dataset's attributes."""
     config_cls, _ = network_classes(network)
     fields = {f.name for f in dataclasses.fields(config_cls)}
-    attrs = read_dataset(dataset_path).attrs
     return {k: tuple(attrs[a]) for k, a in GEOMETRY_ATTRIBUTES.items() if k in fields and a in attrs}
 
 
@@ -99,8 +97,9 @@ def train_network(network: str, settings: dict, dataset_path: str | os.PathLike,
     The checkpoint `<model_path>.ckpt` lets an interrupted run resume; it is removed once the
     model file is written.
     """
-    loop, config = split_settings(network, {**dataset_geometry(network, dataset_path), **settings}, seed)
-    data = training_data(dataset_path, train_images, seed)
+    ds = read_dataset(dataset_path)
+    loop, config = split_settings(network, {**dataset_geometry(network, ds.attrs), **settings}, seed)
+    data = training_data(ds, dataset_path, train_images, seed)
     torch.manual_seed(seed)
     _, model_cls = network_classes(network)
     model = model_cls(config, tuple(data.images.shape[1:]))

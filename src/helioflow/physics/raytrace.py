@@ -123,11 +123,13 @@ def trace(
     sun = sun_vector(azimuth.to(dtype=dtype, device=device), elevation.to(dtype=dtype, device=device))
     generator = torch.Generator(device="cpu").manual_seed(seed)
     images = []
-    for start in range(0, len(sun), _sun_chunk(heliostats, cells_per_side)):
-        s_sun = sun[start : start + _sun_chunk(heliostats, cells_per_side)]
+    samples = [sample_surface(h, cells_per_side) for h in heliostats]  # once, not per sun batch
+    per_batch = _sun_chunk(heliostats, cells_per_side)
+    for start in range(0, len(sun), per_batch):
+        s_sun = sun[start : start + per_batch]
         image = torch.zeros(len(s_sun), rows, cols, dtype=dtype, device=device)
-        for heliostat in heliostats:
-            coeffs = _project(heliostat, sample_surface(heliostat, cells_per_side), s_sun, target, aim, optics)
+        for heliostat, surface in zip(heliostats, samples):
+            coeffs = _project(heliostat, surface, s_sun, target, aim, optics)
             if splat == "bilinear":
                 image = image + _splat_bilinear(coeffs, target, optics, rays, generator, chunk_rays)
             else:
