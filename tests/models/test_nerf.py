@@ -17,7 +17,7 @@ from helioflow.models.nerf import (
     heliostat_rotation,
     mirror_normal,
 )
-from helioflow.models.registry import load_model, save_model
+from helioflow.models.registry import dataset_geometry, load_model, save_model
 from helioflow.models.training import LoopConfig, train
 from helioflow.physics.geometry import normalize, reflect, rotation_about_axis
 from helioflow.physics.heliostat import ideal_heliostat
@@ -205,3 +205,12 @@ def test_save_and_load_give_identical_predictions(tmp_path):
 def test_bad_settings_are_config_errors(key, value):
     with pytest.raises(ConfigError, match=key):
         NerfConfig(**{key: value})
+
+
+def test_the_nerf_takes_mount_and_canting_distance_from_the_dataset():
+    attrs = {"heliostat_position_m": [1.0, 50.0, 0.0], "target_center_m": [0.0, 0.0, 20.0],
+             "target_normal": [0.0, 1.0, 0.0], "heliostat_mount": "juelich", "canting_focal_distance_m": 200.0}
+    geometry = dataset_geometry("nerf", attrs)
+    assert geometry == {"heliostat_position_m": (1.0, 50.0, 0.0), "aim_point_m": (0.0, 0.0, 20.0),
+                        "target_normal": (0.0, 1.0, 0.0), "mount": "juelich", "canting_focal_distance_m": 200.0}
+    assert NerfConfig(**geometry).canting_focal_distance_m == 200.0

@@ -9,6 +9,7 @@ import torch
 from helioflow.physics.geometry import normalize, sun_vector
 from helioflow.physics.heliostat import (
     ideal_heliostat,
+    canting_focal_distance,
     MOUNTS,
     REST_FRAME,
     Heliostat,
@@ -182,3 +183,13 @@ def test_facet_layout_and_canting_error_directions():
     moved = math.sin(math.atan(e))
     assert frames[0, 1, 2].item() == pytest.approx(moved, rel=1e-9) and abs(frames[0, 0, 2]) < 1e-15
     assert frames[1, 0, 2].item() == pytest.approx(moved, rel=1e-9) and abs(frames[1, 1, 2]) < 1e-15
+
+
+@pytest.mark.parametrize("distance", [None, 63.0, 200.0])
+def test_canting_distance_recovered_from_facet_normals(distance):
+    h = ideal_heliostat(rows=4, cols=6, width=0.8, height=0.6, gap=0.02, canting_focal_distance=distance)
+    found = canting_focal_distance(h)
+    if distance is None:
+        assert found is None
+    else:
+        assert found == pytest.approx(distance, rel=1e-3)

@@ -14,6 +14,7 @@ import torch
 from .. import __version__
 from ..physics.effects import Physics, resolve
 from ..physics.geometry import normalize
+from ..physics.heliostat import canting_focal_distance
 from ..physics.raytrace import trace
 from ..physics.sun import rms_radius
 from ..physics.target import Target
@@ -112,6 +113,8 @@ def trace_dataset(spec: dict, heliostat_path: str | os.PathLike, output_path: st
             "target_normal": normal.tolist(),
             "target_size_m": [window, window],
             "heliostat_position_m": heliostat.position.tolist(),
+            "heliostat_mount": heliostat.mount,
+            "canting_focal_distance_m": canting_focal_distance(heliostat),
             "fill_threshold": FILL_THRESHOLD,
             "fill_fraction_min": float(fill.min()),
             "seed": spec["seed"],

@@ -78,15 +78,17 @@ def training_data(ds: CalibrationDataset, dataset_path, limit: int | None = None
 
 # config fields a network may take from the dataset's attributes when its settings leave them unset
 GEOMETRY_ATTRIBUTES = {"heliostat_position_m": "heliostat_position_m", "aim_point_m": "target_center_m",
-                       "target_normal": "target_normal"}
+                       "target_normal": "target_normal", "mount": "heliostat_mount",
+                       "canting_focal_distance_m": "canting_focal_distance_m"}
 
 
 def dataset_geometry(network: str, attrs: dict) -> dict:
     """The scene geometry a network's config declares (e.g. the NeRF's heliostat position, aim
-    point and target normal), taken from a dataset's attributes."""
+    point, target normal, mount and canting distance), taken from a dataset's attributes."""
     config_cls, _ = network_classes(network)
     fields = {f.name for f in dataclasses.fields(config_cls)}
-    return {k: tuple(attrs[a]) for k, a in GEOMETRY_ATTRIBUTES.items() if k in fields and a in attrs}
+    return {k: tuple(attrs[a]) if isinstance(attrs[a], list) else attrs[a]
+            for k, a in GEOMETRY_ATTRIBUTES.items() if k in fields and a in attrs}
 
 
 def train_network(network: str, settings: dict, dataset_path: str | os.PathLike, model_path: str | os.PathLike,

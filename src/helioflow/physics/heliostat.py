@@ -108,6 +108,19 @@ def on_axis_canting(translation: np.ndarray, focal_distance: float | None) -> np
     return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
 
+def canting_focal_distance(heliostat: Heliostat, tolerance_rad: float = 1e-6) -> float | None:
+    """The on-axis canting distance f (m) that best explains the facet normals, or None for
+    parallel facets: least squares over facets of tilt (n_x, n_y) / n_z = -r / (2 f) (see
+    on_axis_canting), r the facet centre (m) in the heliostat frame."""
+    r = heliostat.facet_translation[:, :2].double()
+    n = heliostat.facet_normal.double()
+    tilt = n[:, :2] / n[:, 2:3]
+    if float(tilt.abs().max()) < tolerance_rad or float((r * r).sum()) == 0.0:
+        return None
+    inverse = -2.0 * float((tilt * r).sum()) / float((r * r).sum())  # 1 / f
+    return None if abs(inverse) < tolerance_rad else 1.0 / inverse
+
+
 def ideal_heliostat(
     rows: int = 1,
     cols: int = 1,
