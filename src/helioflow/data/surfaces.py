@@ -9,7 +9,8 @@ Layout (schema ``helioflow.heliostat/1``), all in the heliostat frame (right, up
     facets/canting_error_mrad (F, 2)    tilt errors about facet right and up, mrad
     surface/control_heights_mm (F, C, C) B-spline control-point heights, mm (rows top first)
     tracking_error_mrad       (5,)      in the order of attribute `tracking_parameters`
-    attributes: mount, facet_focal_length_m (NaN = flat), tracking_parameters, spec (the config)
+    attributes: mount, facet_focal_length_m (NaN = flat), tracking_parameters, spec (the config),
+                source (provenance of an imported heliostat, e.g. PAINT; {} for a configured one)
 """
 
 from __future__ import annotations
@@ -46,8 +47,12 @@ def true_heliostat(spec: HeliostatSpec) -> Heliostat:
     return replace(ideal, control_heights=t(heights), canting_error=t(canting), tracking_error=t(tracking))
 
 
-def write_heliostat(path: str | os.PathLike, heliostat: Heliostat, spec: HeliostatSpec | None = None) -> None:
-    """Write a heliostat's geometry atomically (see the module docstring for the layout)."""
+def write_heliostat(path: str | os.PathLike, heliostat: Heliostat, spec: HeliostatSpec | None = None,
+                    source: dict | None = None) -> None:
+    """Write a heliostat's geometry atomically (see the module docstring for the layout).
+
+    spec: the config section it was made from; source: JSON-able provenance of an imported one.
+    """
     h = heliostat
     arrays = {
         "position_m": h.position,
@@ -63,6 +68,7 @@ def write_heliostat(path: str | os.PathLike, heliostat: Heliostat, spec: Heliost
         "facet_focal_length_m": float("nan") if h.facet_focal_length is None else float(h.facet_focal_length),
         "tracking_parameters": list(TRACKING_PARAMETERS),
         "spec": asdict(spec) if spec is not None else {},
+        "source": source or {},
     }
     write_arrays(path, {k: v.detach().cpu().numpy().astype(np.float64) for k, v in arrays.items()}, attrs, SCHEMA)
 

@@ -1,0 +1,473 @@
+"""Import PAINT calibration data: real focal-spot images, sun positions and heliostat geometry.
+
+A PAINT directory holds ``tower-measurements.json`` (tower, calibration targets) and one folder per
+heliostat with ``heliostat-properties.json`` and, per measurement ``<id>``,
+``<id>-calibration-properties.json``, ``<id>-flux.png`` and ``<id>-flux-centered.png``.
+`import_paint` turns one heliostat folder into a helioflow dataset (schema of ``hdf5.py``, the
+same attributes as a traced dataset) and/or the heliostat's geometry file (``surfaces.py``).
+
+Conventions (checked against the data; see tests/data/test_paint.py):
+
+- Frame: WGS84 latitude/longitude/altitude -> local ENU metres around the tower's
+  ``power_plant_properties.coordinates`` (``geometry.wgs84_to_enu``).
+- Sun: ``sun_azimuth`` / ``sun_elevation`` in degrees, azimuth 0 = south, +90 = east, which is
+  helioflow's convention: taken as they are. A sun at or below the horizon is an error.
+- Target: a plane through the mean of its four corners; right = mean of the upper and lower
+  edges (``upper_left`` -> ``upper_right``, east to west as seen from the field), up = mean of the
+  side edges, normal = right x up (towards the field), width/height = their lengths (m).
+  helioflow's target axes are horizontal (``geometry.plane_axes``); the corners' in-plane tilt
+  (< 5 mrad, < 2 cm at the edges, below one pixel) is neglected.
+- Images: ``<id>-flux.png`` spans the whole target (the UTIS rectified image): row 0 is the upper
+  edge, column 0 the ``upper_left``/``lower_left`` side, i.e. rows top-down and columns to the
+  right as seen from the field, as helioflow's images. Its flux-weighted centroid matches PAINT's
+  UTIS centroid to 1-4 cm (UTIS counts pixel corners, not centres: half a pixel). The
+  ``-flux-centered`` image is shifted onto the spot and so loses where the spot is; it is not
+  used. Grey levels are divided by 255 (65535 for 16-bit): each PNG is normalised to its own
+  peak, so images are relative flux, not W/m^2, and intensities across images are not comparable.
+  Images are resampled to the configured resolution by exact area averaging over the same target
+  extent, so pixel centres keep their target coordinates (nothing shifts).
+- Heliostat: PAINT facets are given for the mirror lying flat, facing up, in (e, n, u); mounted,
+  the mirror faces south at rest (``initial_orientation`` [0, -1, 0]), which is the rotation about
+  east taking (e, n, u) to (east, up, south) = helioflow's heliostat frame (right, up, normal), as
+  in ARTIST's rigid-body kinematics. So the translation vectors and the canting vectors need no
+  conversion: ``canting_e`` and ``canting_n`` are the facet's half-width and half-height vectors
+  in that frame, facet size = 2 |canting_e|, 2 |canting_n|, facet normal = canting_e x canting_n.
+  The mount is "juelich" (first joint about east), the facets flat, the surface undeformed and
+  the tracking error zero (the ideal heliostat). The concentrator translation (ARTIST applies it
+  after both joints, in the frame where the mirror faces -n) and the facets' common normal offset
+  put the mirror 0.135 m behind the pivot; helioflow's kinematics aims the pivot, so that common
+  offset along the normal is dropped (recorded in the file's ``source.dropped_normal_offset_m``):
+  the ideal heliostat reflects the sun onto the aim point. Joint translations (all 0 in PAINT)
+  and the actuator parameters are kinematic details the ideal heliostat does not use.
+- Splits: every image is "train" except the configured ``holdout`` ids, which are
+  "interpolation" when their sun position lies inside the azimuth and elevation ranges of the
+  train images and "extrapolation" otherwise.
+- Targets: a heliostat's measurements may be taken on several targets. The per-image target
+  geometry is in the extras ``target_center_m`` (N, 3), ``target_normal`` (N, 3),
+  ``target_size_m`` (N, 2) and ``target_name`` (N,); the root attributes ``target_*`` hold the
+  target of most images, exact for all images only when ``mixed_targets`` is false (choose one
+  with the ``targets`` option).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import __version__
+from ..errors import DataError, HelioflowError
+from ..physics.geometry import wgs84_to_enu
+from ..physics.heliostat import TRACKING_PARAMETERS, Heliostat, canting_focal_distance
+from .hdf5 import CalibrationDataset, write_dataset
+from .synthetic import CONVENTIONS, config_hash
+from .surfaces import write_heliostat
+
+log = logging.getLogger(__name__)
+
+TOWER_FILE = "tower-measurements.json"
+PROPERTIES_FILE = "heliostat-properties.json"
+CALIBRATION_SUFFIX = "-calibration-properties.json"
+CORNERS = ("upper_left", "upper_right", "lower_left", "lower_right")
+CONTROL_POINTS = 6  # B-spline control points per facet side of the (zero) surface deformation
+
+
+@dataclass(frozen=True)
+class PlaneTarget:
+    """A planar calibration target in ENU: centre (3,) m, unit normal (3,) towards the field,
+    width and height (m) along its right and up axes."""
+
+    name: str
+    center: np.ndarray
+    normal: np.ndarray
+    width: float
+    height: float
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One calibration measurement: sun position (deg), target, PAINT's spot centroids (ENU m)."""
+
+    id: str
+    azimuth_deg: float
+    elevation_deg: float
+    target_name: str
+    focal_spot_utis_m: np.ndarray
+    focal_spot_helios_m: np.ndarray
+    motor_position: tuple[float, float]
+    flux_png: Path
+
+
+def read_json(path: Path) -> dict:
+    """A JSON object from `path`; DataError if missing, unreadable or not an object."""
+    if not path.is_file():
+        raise DataError(f"{path} does not exist")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DataError(f"{path}: not a readable JSON file: {exc}") from None
+    if not isinstance(data, dict):
+        raise DataError(f"{path}: expected a JSON object, found {type(data).__name__}")
+    return data
+
+
+def field(data: dict, path: Path, key: str, kind: str = "number", where: str = ""):
+    """The value at dotted `key` in `data`, checked to be `kind`: "number", "vec3" (3 numbers),
+    "string", "list" or "object"; DataError naming the file and the field (prefixed by `where`,
+    e.g. "facet_properties.facets[2]") otherwise."""
+    value = data
+    parts = key.split(".")
+    for i, part in enumerate(parts):
+        if not isinstance(value, dict) or part not in value:
+            missing = ".".join(([where] if where else []) + parts[: i + 1])
+            raise DataError(f"{path}: missing field {missing!r}")
+        value = value[part]
+    ok = {
+        "number": _is_number,
+        "vec3": lambda v: isinstance(v, list) and len(v) == 3 and all(_is_number(x) for x in v),
+        "string": lambda v: isinstance(v, str),
+        "list": lambda v: isinstance(v, list),
+        "object": lambda v: isinstance(v, dict),
+    }[kind]
+    if not ok(value):
+        expected = {"number": "a finite number", "vec3": "a list of 3 finite numbers"}.get(kind, f"a {kind}")
+        name = f"{where}.{key}" if where else key
+        raise DataError(f"{path}: field {name!r} = {value!r}: expected {expected}")
+    return value
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+class Tower:
+    """tower-measurements.json: the ENU origin and the planar calibration targets."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.data = read_json(path)
+        self.origin = tuple(field(self.data, path, "power_plant_properties.coordinates", "vec3"))
+
+    def enu(self, wgs84) -> np.ndarray:
+        """(..., 3) WGS84 (lat deg, lon deg, alt m) -> (..., 3) ENU m around the tower."""
+        p = np.asarray(wgs84, dtype=float)
+        return wgs84_to_enu(p[..., 0], p[..., 1], p[..., 2], *self.origin)
+
+    def planar_targets(self) -> list[str]:
+        return sorted(k for k, v in self.data.items() if isinstance(v, dict) and v.get("type") == "planar")
+
+    def target(self, name: str, used_in: Path) -> PlaneTarget:
+        """The planar target `name` (DataError naming `used_in` if the tower has no such target)."""
+        if name not in self.planar_targets():
+            raise DataError(f"{used_in}: target_name {name!r} is not a planar target in {self.path}; "
+                            f"known: {', '.join(self.planar_targets())}")
+        corners = {c: self.enu(field(self.data, self.path, f"{name}.coordinates.{c}", "vec3")) for c in CORNERS}
+        normal_hint = np.asarray(field(self.data, self.path, f"{name}.normal_vector", "vec3"), dtype=float)
+        return plane_from_corners(name, corners, normal_hint)
+
+
+def plane_from_corners(name: str, corners: dict[str, np.ndarray], normal_hint: np.ndarray) -> PlaneTarget:
+    """Target plane from its ENU corners (dict of CORNERS -> (3,) m); the normal's sign follows
+    `normal_hint` (PAINT's ``normal_vector``, towards the field)."""
+    right = 0.5 * ((corners["upper_right"] - corners["upper_left"]) + (corners["lower_right"] - corners["lower_left"]))
+    up = 0.5 * ((corners["upper_left"] - corners["lower_left"]) + (corners["upper_right"] - corners["lower_right"]))
+    normal = np.cross(right, up)
+    normal /= np.linalg.norm(normal)
+    if normal @ normal_hint < 0:
+        normal = -normal
+    center = np.mean([corners[c] for c in CORNERS], axis=0)
+    return PlaneTarget(name, center, normal, float(np.linalg.norm(right)), float(np.linalg.norm(up)))
+
+
+def read_measurement(path: Path, tower: Tower) -> Measurement:
+    """One ``<id>-calibration-properties.json`` (and the path of its ``<id>-flux.png``)."""
+    data = read_json(path)
+    azimuth = float(field(data, path, "sun_azimuth"))
+    elevation = float(field(data, path, "sun_elevation"))
+    if not 0 < elevation <= 90:
+        raise DataError(f"{path}: sun_elevation = {elevation:g} deg: the sun is below the horizon "
+                        "(expected 0 < elevation <= 90)")
+    if not -180 <= azimuth <= 360:
+        raise DataError(f"{path}: sun_azimuth = {azimuth:g} deg: expected degrees in [-180, 360]")
+    target = field(data, path, "target_name", "string")
+    tower.target(target, path)
+    mid = path.name[: -len(CALIBRATION_SUFFIX)]
+    return Measurement(
+        id=mid,
+        azimuth_deg=(azimuth + 180.0) % 360.0 - 180.0,
+        elevation_deg=elevation,
+        target_name=target,
+        focal_spot_utis_m=tower.enu(field(data, path, "focal_spot.UTIS", "vec3")),
+        focal_spot_helios_m=tower.enu(field(data, path, "focal_spot.HeliOS", "vec3")),
+        motor_position=(float(field(data, path, "motor_position.axis_1_motor_position")),
+                        float(field(data, path, "motor_position.axis_2_motor_position"))),
+        flux_png=path.with_name(f"{mid}-flux.png"),
+    )
+
+
+def read_flux_png(path: Path) -> np.ndarray:
+    """(H, W) float64 grey levels in [0, 1] of a greyscale PNG; DataError if missing or corrupt."""
+    from PIL import Image, UnidentifiedImageError  # Pillow: a dependency of matplotlib and scikit-image
+
+    if not path.is_file():
+        raise DataError(f"{path} does not exist (every <id>-calibration-properties.json needs its <id>-flux.png)")
+    try:
+        with Image.open(path) as img:
+            img.load()
+            if img.format != "PNG":
+                raise DataError(f"{path}: expected a PNG image, found {img.format}")
+            sixteen = img.mode.startswith("I")
+            array = np.asarray(img if sixteen else img.convert("L"), dtype=np.float64)
+    except (OSError, SyntaxError, ValueError, UnidentifiedImageError) as exc:
+        raise DataError(f"{path}: not a readable PNG image (corrupt or truncated?): {exc}") from None
+    if array.ndim != 2 or min(array.shape) < 2:
+        raise DataError(f"{path}: image has shape {array.shape}, expected a 2-D greyscale image")
+    return array / (65535.0 if sixteen else 255.0)
+
+
+def resample_area(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) image -> `shape` (h, w) by exact area averaging over the same extent.
+
+    Each output pixel is the area-weighted mean of the input pixels it overlaps, so a uniform
+    image stays uniform, the total (times pixel area) is kept and both pixel grids span the same
+    target: pixel centres keep their target coordinates (no shift; upsampling replicates).
+    """
+    rows = _overlap(image.shape[0], shape[0])
+    cols = _overlap(image.shape[1], shape[1])
+    return rows @ image @ cols.T
+
+
+def _overlap(n_in: int, n_out: int) -> np.ndarray:
+    """(n_out, n_in) weights: fraction of output pixel i covered by input pixel j (rows sum to 1)."""
+    e_in = np.arange(n_in + 1) / n_in
+    e_out = np.arange(n_out + 1) / n_out
+    lo = np.maximum(e_out[:-1, None], e_in[None, :-1])
+    hi = np.minimum(e_out[1:, None], e_in[None, 1:])
+    return np.clip(hi - lo, 0.0, None) * n_out
+
+
+def heliostat_folder(paint_dir: Path, heliostat: str) -> Path:
+    """`paint_dir`/`heliostat`; DataError listing the heliostat folders if it is not there."""
+    folder = paint_dir / heliostat
+    if not folder.is_dir():
+        known = sorted(p.name for p in paint_dir.iterdir() if p.is_dir()) if paint_dir.is_dir() else []
+        where = f"heliostat folders there: {', '.join(known)}" if known else f"{paint_dir} is not a directory"
+        raise DataError(f"{folder} does not exist; {where}")
+    return folder
+
+
+def read_heliostat_properties(path: Path, tower: Tower) -> tuple[Heliostat, dict]:
+    """The ideal heliostat (float64) of a heliostat-properties.json and its provenance attributes."""
+    if not path.is_file():
+        found = len(list(path.parent.glob(f"*{CALIBRATION_SUFFIX}")))
+        raise DataError(f"{path} does not exist: the heliostat's position and facets are missing "
+                        f"({found} measurements found in {path.parent}, not importable without them)")
+    data = read_json(path)
+    position = tower.enu(field(data, path, "heliostat_position", "vec3"))
+    facets = field(data, path, "facet_properties.facets", "list")
+    if not facets:
+        raise DataError(f"{path}: field 'facet_properties.facets' is empty; expected at least one facet")
+    translation, half_e, half_n = (_facet_vectors(facets, path, key)
+                                   for key in ("translation_vector", "canting_e", "canting_n"))
+    kin = field(data, path, "kinematics_properties", "object")
+    concentrator = np.array([float(field(kin, path, f"concentrator_translation_{a}")) for a in "enu"])
+    # (e, n, u) of the kinematic frame at rest -> heliostat frame (right, up, normal) = (e, u, -n)
+    translation = translation + np.array([concentrator[0], concentrator[2], -concentrator[1]])
+    normal_offset = float(translation[:, 2].mean())
+    translation[:, 2] -= normal_offset
+    normal = np.cross(half_e, half_n)
+    length = np.linalg.norm(normal, axis=-1, keepdims=True)
+    if not (length > 0).all():
+        bad = int(np.flatnonzero(length[:, 0] <= 0)[0])
+        raise DataError(f"{path}: facet_properties.facets[{bad}]: canting_e and canting_n are zero or parallel; "
+                        "expected the facet's half-width and half-height vectors")
+    normal /= length
+    size = 2.0 * np.stack((np.linalg.norm(half_e, axis=-1), np.linalg.norm(half_n, axis=-1)), axis=-1)
+    n = len(translation)
+    t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
+    heliostat = Heliostat(
+        position=t(position), mount="juelich", facet_translation=t(translation), facet_size=t(size),
+        facet_normal=t(normal), facet_focal_length=None,
+        control_heights=torch.zeros(n, CONTROL_POINTS, CONTROL_POINTS, dtype=torch.float64),
+        canting_error=torch.zeros(n, 2, dtype=torch.float64),
+        tracking_error=torch.zeros(len(TRACKING_PARAMETERS), dtype=torch.float64),
+    )
+    source = {"source": "PAINT", "heliostat_properties": str(path), "dropped_normal_offset_m": normal_offset,
+              "canting_type": data.get("facet_properties", {}).get("canting_type"),
+              "renovation": data.get("renovation")}
+    return heliostat, source
+
+
+def _facet_vectors(facets: list, path: Path, key: str) -> np.ndarray:
+    """(F, 3) the vector `key` of every facet."""
+    rows = []
+    for i, f in enumerate(facets):
+        where = f"facet_properties.facets[{i}]"
+        if not isinstance(f, dict):
+            raise DataError(f"{path}: {where} = {f!r}: expected an object")
+        rows.append(field(f, path, key, "vec3", where=where))
+    return np.array(rows, dtype=float)
+
+
+def _sort_key(mid: str):
+    return (not mid.isdigit(), int(mid) if mid.isdigit() else 0, mid)
+
+
+def read_measurements(folder: Path, tower: Tower, targets: list[str] | None) -> list[Measurement]:
+    """Every measurement of a heliostat folder (numeric ids first, in order), optionally only
+    those on `targets`; DataError if there are none."""
+    paths = sorted(folder.glob(f"*{CALIBRATION_SUFFIX}"), key=lambda p: _sort_key(p.name[: -len(CALIBRATION_SUFFIX)]))
+    if not paths:
+        geometry = "its heliostat-properties.json is there: import the geometry alone" if (
+            folder / PROPERTIES_FILE).is_file() else "and no heliostat-properties.json either"
+        raise DataError(f"{folder} has no measurements (no *{CALIBRATION_SUFFIX}); {geometry}")
+    measurements = [read_measurement(p, tower) for p in paths]
+    if targets is not None:
+        unknown = sorted(set(targets) - set(tower.planar_targets()))
+        if unknown:
+            raise DataError(f"targets {unknown} are not planar targets in {tower.path}; "
+                            f"known: {', '.join(tower.planar_targets())}")
+        measurements = [m for m in measurements if m.target_name in targets]
+        if not measurements:
+            raise DataError(f"{folder}: no measurement on targets {targets}")
+    return measurements
+
+
+def split_labels(measurements: list[Measurement], holdout: list[str], folder: Path) -> np.ndarray:
+    """(N,) split labels: train, or for held-out ids interpolation/extrapolation (module docstring)."""
+    ids = [m.id for m in measurements]
+    unknown = [h for h in holdout if h not in ids]
+    if unknown:
+        raise DataError(f"holdout ids {unknown} are not measurements in {folder}; measurements: {', '.join(ids)}")
+    train = [m for m in measurements if m.id not in holdout]
+    if not train:
+        raise DataError(f"holdout holds every measurement of {folder}; at least one must stay for training")
+    az = [m.azimuth_deg for m in train]
+    el = [m.elevation_deg for m in train]
+
+    def label(m: Measurement) -> str:
+        if m.id not in holdout:
+            return "train"
+        inside = min(az) <= m.azimuth_deg <= max(az) and min(el) <= m.elevation_deg <= max(el)
+        return "interpolation" if inside else "extrapolation"
+
+    return np.array([label(m) for m in measurements])
+
+
+def import_paint(
+    paint_dir: str | os.PathLike,
+    heliostat: str,
+    dataset_path: str | os.PathLike | None = None,
+    heliostat_path: str | os.PathLike | None = None,
+    resolution: tuple[int, int] = (64, 64),
+    holdout: list[str] = (),
+    targets: list[str] | None = None,
+    dataset: str | None = None,
+) -> CalibrationDataset | None:
+    """Import one PAINT heliostat folder (conventions in the module docstring).
+
+    Everything is read and checked before anything is written; each output is written atomically
+    and a failure removes what this call wrote, so bad input leaves no output file.
+
+    Args:
+        paint_dir: the PAINT directory (tower-measurements.json and heliostat folders).
+        heliostat: the heliostat folder's name, e.g. "AA39".
+        dataset_path: where to write the dataset (datasets/{dataset}.h5); None = don't.
+        heliostat_path: where to write the ideal geometry (surfaces/{heliostat}.h5); None = don't.
+            The geometry alone needs no measurements.
+        resolution: (rows, columns) of the dataset images.
+        holdout: measurement ids held out of training (module docstring: Splits).
+        targets: import only measurements on these targets; None = all.
+        dataset: the dataset's name (attribute); default the heliostat's.
+
+    Returns:
+        The dataset written to `dataset_path`, or None when only the geometry was asked for.
+    """
+    if dataset_path is None and heliostat_path is None:
+        raise HelioflowError("import_paint: nothing to write; give a dataset path, a heliostat path or both")
+    paint_dir = Path(paint_dir)
+    tower = Tower(paint_dir / TOWER_FILE)
+    folder = heliostat_folder(paint_dir, heliostat)
+    measurements = read_measurements(folder, tower, targets) if dataset_path is not None else []
+    geometry, source = read_heliostat_properties(folder / PROPERTIES_FILE, tower)
+    ds = None
+    if dataset_path is not None:
+        ds = build_dataset(measurements, tower, geometry, tuple(resolution), list(holdout), folder,
+                           dataset or heliostat, heliostat, spec={"paint_dir": str(paint_dir), "targets": targets})
+    written: list[Path] = []
+    try:
+        if ds is not None:
+            write_dataset(dataset_path, ds)
+            written.append(Path(dataset_path))
+        if heliostat_path is not None:
+            write_heliostat(heliostat_path, geometry, source=source)
+    except BaseException:
+        for path in written:
+            path.unlink(missing_ok=True)
+        raise
+    return ds
+
+
+def build_dataset(measurements: list[Measurement], tower: Tower, geometry: Heliostat, resolution: tuple[int, int],
+                  holdout: list[str], folder: Path, dataset: str, heliostat: str, spec: dict) -> CalibrationDataset:
+    """The CalibrationDataset of a heliostat's measurements (images resampled to `resolution`)."""
+    raw = [read_flux_png(m.flux_png) for m in measurements]
+    images = np.stack([resample_area(img, resolution) for img in raw]).astype(np.float32)
+    planes = [tower.target(m.target_name, folder) for m in measurements]
+    names = [p.name for p in planes]
+    main = max(sorted(set(names)), key=names.count)
+    ref = planes[names.index(main)]
+    position = geometry.position.numpy()
+    mixed = len(set(names)) > 1
+    if mixed:
+        log.warning("%s: measurements on %d targets (%s); root attributes target_* describe %s, per-image "
+                    "geometry is in extras/target_*", folder, len(set(names)), ", ".join(sorted(set(names))), main)
+    params = {"dataset": dataset, "heliostat": heliostat, "resolution": list(resolution), "holdout": holdout, **spec}
+    attrs = {
+        "dataset": dataset,
+        "heliostat": heliostat,
+        "source": "PAINT calibration measurements (helioflow import-paint)",
+        "paint_dir": spec["paint_dir"],
+        "units": {"images": "relative (PNG grey level / 255, each image normalised to its peak)",
+                  "angles": "deg", "lengths": "m"},
+        "conventions": CONVENTIONS.replace("flux in W/m^2 for the DNI in attribute dni_w_m2",
+                                           "relative flux (see units)"),
+        "per_image_normalised": True,
+        "source_image_shape": list(raw[0].shape),
+        "target_name": main,
+        "target_center_m": ref.center.tolist(),
+        "target_normal": ref.normal.tolist(),
+        "target_size_m": [ref.width, ref.height],
+        "targets": sorted(set(names)),
+        "mixed_targets": mixed,
+        "heliostat_position_m": position.tolist(),
+        "heliostat_mount": geometry.mount,
+        "canting_focal_distance_m": canting_focal_distance(geometry),
+        "measurement_ids": [m.id for m in measurements],
+        "config_hash": config_hash(params),
+        "helioflow_version": __version__,
+    }
+    extras = {
+        "measurement_id": np.array([m.id for m in measurements]),
+        "target_name": np.array(names),
+        "target_center_m": np.stack([p.center for p in planes]),
+        "target_normal": np.stack([p.normal for p in planes]),
+        "target_size_m": np.array([[p.width, p.height] for p in planes]),
+        "focal_spot_enu_m": np.stack([m.focal_spot_utis_m for m in measurements]),
+        "focal_spot_helios_enu_m": np.stack([m.focal_spot_helios_m for m in measurements]),
+        "motor_position": np.array([m.motor_position for m in measurements]),
+    }
+    return CalibrationDataset(
+        images=images,
+        azimuth_deg=np.array([m.azimuth_deg for m in measurements]),
+        elevation_deg=np.array([m.elevation_deg for m in measurements]),
+        split=split_labels(measurements, holdout, folder),
+        attrs=attrs,
+        extras=extras,
+    )
