@@ -10,6 +10,7 @@ configfile: "config.yaml"
 include: "workflow/rules/common.smk"
 include: "workflow/rules/surfaces.smk"
 include: "workflow/rules/trace.smk"
+include: "workflow/rules/paint.smk"
 include: "workflow/rules/networks.smk"
 
 

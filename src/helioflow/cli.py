@@ -11,6 +11,7 @@ import argparse
 import json
 import logging
 import sys
+from collections import Counter
 
 import torch
 
@@ -45,6 +46,39 @@ def cmd_trace(args) -> None:
 
     ds = trace_dataset(_spec(args, workflow.trace_params), args.heliostat, args.output)
     logging.info("wrote %s: %d images of %s", args.output, len(ds.images), ds.images.shape[1:])
+
+
+def cmd_import_paint(args) -> None:
+    from .data.paint import import_paint
+
+    if args.paint_dir is not None or args.heliostat is not None:
+        if args.paint_dir is None or args.heliostat is None:
+            raise HelioflowError("by hand, give both --paint-dir and --heliostat")
+        spec = {"paint_dir": args.paint_dir, "heliostat": args.heliostat, "resolution": args.resolution,
+                "holdout": args.holdout, "targets": args.targets}
+    else:
+        spec = _spec(args, workflow.import_paint_params)
+    if args.output is None and args.heliostat_output is None:
+        raise HelioflowError("give --output (the dataset), --heliostat-output (the geometry) or both")
+    ds = import_paint(spec["paint_dir"], spec["heliostat"], args.output, args.heliostat_output,
+                      resolution=tuple(spec.get("resolution") or (64, 64)), holdout=spec.get("holdout") or [],
+                      targets=spec.get("targets"), dataset=spec.get("dataset"))
+    if ds is not None:
+        labels = dict(Counter(ds.split.tolist()))
+        logging.info("wrote %s: %d images of %s from %s/%s (splits %s; targets %s)", args.output, len(ds.images),
+                     ds.images.shape[1:], spec["paint_dir"], spec["heliostat"], labels, ", ".join(ds.attrs["targets"]))
+    if args.heliostat_output is not None:
+        logging.info("wrote %s: the ideal geometry of %s", args.heliostat_output, spec["heliostat"])
+
+
+def cmd_paint_centroids(args) -> None:
+    from .evaluate.paint_centroids import centroid_check, format_table, write_centroid_check
+
+    rows = centroid_check(args.dataset, args.heliostat)
+    print(format_table(rows))
+    if args.output is not None:
+        write_centroid_check(rows, args.output)
+        logging.info("wrote %s", args.output)
 
 
 def cmd_plot_dataset(args) -> None:
@@ -108,6 +142,24 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--heliostat", required=True, help="surfaces/{heliostat}.h5 from `surfaces`")
     p.add_argument("--output", required=True, help="datasets/{dataset}.h5")
     p.set_defaults(func=cmd_trace)
+
+    p = sub.add_parser("import-paint", help="import a PAINT heliostat: dataset and/or ideal geometry")
+    _with_spec(p)
+    p.add_argument("--paint-dir", help="by hand: the PAINT directory (tower-measurements.json, heliostat folders)")
+    p.add_argument("--heliostat", help="by hand: the heliostat folder, e.g. AA39")
+    p.add_argument("--resolution", type=int, nargs=2, default=[64, 64], metavar=("ROWS", "COLS"),
+                   help="by hand: image size of the dataset (default 64 64)")
+    p.add_argument("--holdout", nargs="*", default=[], metavar="ID", help="by hand: measurement ids held out")
+    p.add_argument("--targets", nargs="+", metavar="NAME", help="by hand: only measurements on these targets")
+    p.add_argument("--output", help="datasets/{dataset}.h5")
+    p.add_argument("--heliostat-output", help="surfaces/{heliostat}.h5: the ideal heliostat geometry")
+    p.set_defaults(func=cmd_import_paint)
+
+    p = sub.add_parser("paint-centroids", help="measured vs ideal spot centroid (mrad) per PAINT image")
+    p.add_argument("--dataset", required=True, help="datasets/{dataset}.h5 from import-paint")
+    p.add_argument("--heliostat", required=True, help="surfaces/{heliostat}.h5 from import-paint")
+    p.add_argument("--output", help="JSON file of the per-image numbers")
+    p.set_defaults(func=cmd_paint_centroids)
 
     p = sub.add_parser("train", help="train a network on a dataset's train split")
     _with_spec(p)

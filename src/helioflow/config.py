@@ -118,6 +118,12 @@ def _check_references(config: dict, source: str) -> None:
             raise ConfigError(f"{source}: data_efficiency.networks has {network!r}, which is not in networks")
     for name, ds in config["datasets"].items():
         where = f"{source}: datasets.{name}"
+        if ds["source"] == "paint":
+            _check_paint_dataset(config, name, where)
+            continue
+        extra = sorted(_PAINT_KEYS & set(ds))
+        if extra:
+            raise ConfigError(f"{where}: key {extra[0]!r} is for PAINT datasets; add source: paint or remove it")
         if ds["heliostat"] not in config["heliostats"]:
             known = ", ".join(config["heliostats"])
             raise ConfigError(f"{where}.heliostat = {ds['heliostat']!r} is not a heliostat in config; known: {known}")
@@ -133,6 +139,27 @@ def _check_references(config: dict, source: str) -> None:
         check_effects(ds.get("world_effects"), f"{where}.world_effects", allow_fit=False)
         if ds["trace"]["splat"] == "bilinear" and ds["trace"].get("rays", 0) <= 0:
             raise ConfigError(f"{where}.trace.rays = {ds['trace'].get('rays')!r}: bilinear splatting needs rays > 0")
+
+
+_PAINT_KEYS = {"paint_dir", "resolution", "holdout", "targets"}
+_TRACE_KEYS = {"sun", "splits", "trace", "world_effects"}
+
+
+def _check_paint_dataset(config: dict, name: str, where: str) -> None:
+    """A PAINT dataset takes no trace keys, and its heliostat (a PAINT folder, whose geometry goes
+    to surfaces/<heliostat>.h5) is no configured heliostat and comes from one PAINT directory."""
+    ds = config["datasets"][name]
+    extra = sorted(_TRACE_KEYS & set(ds))
+    if extra:
+        raise ConfigError(f"{where}: key {extra[0]!r} is for traced datasets; a PAINT dataset (source: paint) "
+                          f"takes {', '.join(['heliostat', *sorted(_PAINT_KEYS)])}")
+    if ds["heliostat"] in config["heliostats"]:
+        raise ConfigError(f"{where}.heliostat = {ds['heliostat']!r} is also a configured heliostat; both would "
+                          f"write surfaces/{ds['heliostat']}.h5: rename the configured one")
+    for other, o in config["datasets"].items():
+        if o["source"] == "paint" and o["heliostat"] == ds["heliostat"] and o["paint_dir"] != ds["paint_dir"]:
+            raise ConfigError(f"{where}.paint_dir = {ds['paint_dir']!r}, but datasets.{other} takes heliostat "
+                              f"{ds['heliostat']!r} from {o['paint_dir']!r}; one heliostat, one PAINT directory")
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,8 @@ rerun trigger), and tests can call them without snakemake.
 from __future__ import annotations
 
 import copy
+import re
+from pathlib import Path
 
 from .errors import ConfigError
 
@@ -66,6 +68,68 @@ def trace_params(config: dict, dataset: str) -> dict:
     }
 
 
+def paint_datasets(config: dict) -> list[str]:
+    """Names of the datasets imported from PAINT (source: paint)."""
+    return [d for d, ds in config["datasets"].items() if ds.get("source") == "paint"]
+
+
+def paint_heliostats(config: dict) -> list[str]:
+    """The PAINT heliostat folders the PAINT datasets name, each once, in config order."""
+    return list(dict.fromkeys(config["datasets"][d]["heliostat"] for d in paint_datasets(config)))
+
+
+def name_pattern(names: list[str]) -> str:
+    """A wildcard regex matching exactly `names` (one that never matches for none): keeps a rule
+    to the datasets or heliostats it can make."""
+    return "|".join(re.escape(n) for n in names) or "(?!)"
+
+
+def import_paint_params(config: dict, dataset: str) -> dict:
+    """Parameters of rule `import_paint`: the PAINT folder, image resolution (default
+    target.resolution), held-out measurement ids and the target filter."""
+    ds = _dataset(config, dataset)
+    if ds.get("source") != "paint":
+        raise ConfigError(f"dataset {dataset!r} is not imported from PAINT (source: {ds.get('source')})")
+    return {
+        "dataset": dataset,
+        "paint_dir": ds["paint_dir"],
+        "heliostat": ds["heliostat"],
+        "resolution": list(ds.get("resolution") or config["target"]["resolution"]),
+        "holdout": list(ds.get("holdout") or []),
+        "targets": ds.get("targets"),
+    }
+
+
+def paint_heliostat_params(config: dict, heliostat: str) -> dict:
+    """Parameters of rule `paint_heliostat`: the PAINT directory and folder of the heliostat."""
+    for d in paint_datasets(config):
+        if config["datasets"][d]["heliostat"] == heliostat:
+            return {"paint_dir": config["datasets"][d]["paint_dir"], "heliostat": heliostat}
+    raise ConfigError(f"no PAINT dataset takes heliostat {heliostat!r}; PAINT heliostats: "
+                      f"{', '.join(paint_heliostats(config)) or 'none'}")
+
+
+def import_paint_inputs(config: dict, dataset: str) -> dict:
+    """Files rule `import_paint` reads: tower-measurements.json, heliostat-properties.json and
+    every <id>-calibration-properties.json with its <id>-flux.png of the dataset's heliostat."""
+    p = import_paint_params(config, dataset)
+    files = _paint_files(p["paint_dir"], p["heliostat"])
+    folder = Path(p["paint_dir"]) / p["heliostat"]
+    files["measurements"] = [str(f) for c in sorted(folder.glob("*-calibration-properties.json"))
+                             for f in (c, c.with_name(c.name.replace("-calibration-properties.json", "-flux.png")))]
+    return files
+
+
+def paint_heliostat_inputs(config: dict, heliostat: str) -> dict:
+    """Files rule `paint_heliostat` reads: tower-measurements.json and heliostat-properties.json."""
+    return _paint_files(**paint_heliostat_params(config, heliostat))
+
+
+def _paint_files(paint_dir: str, heliostat: str) -> dict:
+    return {"tower": str(Path(paint_dir) / "tower-measurements.json"),
+            "properties": str(Path(paint_dir) / heliostat / "heliostat-properties.json")}
+
+
 def dataset_paths(config: dict) -> list[str]:
     """Every configured dataset file."""
     return [f"{results_dir(config)}/datasets/{d}.h5" for d in config["datasets"]]
@@ -119,6 +183,7 @@ def all_targets(config: dict) -> list[str]:
     r = results_dir(config)
     figures = [f"{r}/figures/datasets/{d}.png" for d in config["datasets"]]
     targets = dataset_paths(config) + figures
+    targets += [f"{r}/paint/{d}_centroids.json" for d in paint_datasets(config)]
     if config.get("networks"):
         targets += metrics_paths(config) + [f"{r}/tables/table1.md"]
     if (config.get("data_efficiency") or {}).get("networks"):

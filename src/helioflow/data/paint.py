@@ -324,7 +324,7 @@ def read_measurements(folder: Path, tower: Tower, targets: list[str] | None) -> 
     those on `targets`; DataError if there are none."""
     paths = sorted(folder.glob(f"*{CALIBRATION_SUFFIX}"), key=lambda p: _sort_key(p.name[: -len(CALIBRATION_SUFFIX)]))
     if not paths:
-        geometry = "its heliostat-properties.json is there: import the geometry alone" if (
+        geometry = "its heliostat-properties.json is there: import the geometry alone (--heliostat-output)" if (
             folder / PROPERTIES_FILE).is_file() else "and no heliostat-properties.json either"
         raise DataError(f"{folder} has no measurements (no *{CALIBRATION_SUFFIX}); {geometry}")
     measurements = [read_measurement(p, tower) for p in paths]

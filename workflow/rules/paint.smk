@@ -1,0 +1,62 @@
+# Real calibration data imported from PAINT directories (datasets with `source: paint`). Their
+# datasets and heliostat geometries have the same paths as traced ones: the wildcard constraints
+# keep these rules to the PAINT names, and ruleorder gives them precedence where both match.
+ruleorder: import_paint > trace
+ruleorder: paint_heliostat > surfaces
+
+
+rule import_paint:
+    """Real focal-spot images, sun positions and targets of a PAINT heliostat, as a dataset."""
+    input:
+        unpack(lambda wc: import_paint_inputs(config, wc.dataset)),
+    output:
+        dataset=f"{RESULTS}/datasets/{{dataset}}.h5",
+    wildcard_constraints:
+        dataset=name_pattern(paint_datasets(config)),
+    params:
+        spec=lambda wc: json.dumps(import_paint_params(config, wc.dataset)),
+    log:
+        f"{RESULTS}/logs/import_paint/{{dataset}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/import_paint/{{dataset}}.tsv"
+    threads: 1
+    shell:
+        "helioflow import-paint --spec {params.spec:q} --output {output.dataset} > {log} 2>&1"
+
+
+rule paint_heliostat:
+    """The ideal geometry of a PAINT heliostat (Juelich mount, canted facets, no errors)."""
+    input:
+        unpack(lambda wc: paint_heliostat_inputs(config, wc.heliostat)),
+    output:
+        geometry=f"{RESULTS}/surfaces/{{heliostat}}.h5",
+    wildcard_constraints:
+        heliostat=name_pattern(paint_heliostats(config)),
+    params:
+        spec=lambda wc: json.dumps(paint_heliostat_params(config, wc.heliostat)),
+    log:
+        f"{RESULTS}/logs/paint_heliostat/{{heliostat}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/paint_heliostat/{{heliostat}}.tsv"
+    threads: 1
+    shell:
+        "helioflow import-paint --spec {params.spec:q} --heliostat-output {output.geometry} > {log} 2>&1"
+
+
+rule paint_centroids:
+    """Centroid offset (mrad) of each measured spot from the ideal heliostat's traced spot."""
+    input:
+        dataset=f"{RESULTS}/datasets/{{dataset}}.h5",
+        heliostat=lambda wc: f"{RESULTS}/surfaces/{dataset_heliostat(config, wc.dataset)}.h5",
+    output:
+        centroids=f"{RESULTS}/paint/{{dataset}}_centroids.json",
+    wildcard_constraints:
+        dataset=name_pattern(paint_datasets(config)),
+    log:
+        f"{RESULTS}/logs/paint_centroids/{{dataset}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/paint_centroids/{{dataset}}.tsv"
+    threads: 1
+    shell:
+        "helioflow --threads {threads} paint-centroids --dataset {input.dataset} --heliostat {input.heliostat}"
+        " --output {output.centroids} > {log} 2>&1"
