@@ -58,5 +58,5 @@ rule paint_centroids:
         f"{RESULTS}/benchmarks/paint_centroids/{{dataset}}.tsv"
     threads: 1
     shell:
-        "helioflow --threads {threads} paint-centroids --dataset {input.dataset} --heliostat {input.heliostat}"
-        " --output {output.centroids} > {log} 2>&1"
+        "helioflow --threads {threads} paint-centroids --dataset {input.dataset}"
+        " --heliostat {input.heliostat} --output {output.centroids} > {log} 2>&1"

@@ -66,8 +66,8 @@ from ..errors import DataError, HelioflowError
 from ..physics.geometry import wgs84_to_enu
 from ..physics.heliostat import TRACKING_PARAMETERS, Heliostat, canting_focal_distance
 from .hdf5 import CalibrationDataset, write_dataset
-from .synthetic import CONVENTIONS, config_hash
 from .surfaces import write_heliostat
+from .synthetic import CONVENTIONS, config_hash
 
 log = logging.getLogger(__name__)
 
@@ -167,7 +167,8 @@ class Tower:
         if name not in self.planar_targets():
             raise DataError(f"{used_in}: target_name {name!r} is not a planar target in {self.path}; "
                             f"known: {', '.join(self.planar_targets())}")
-        corners = {c: self.enu(field(self.data, self.path, f"{name}.coordinates.{c}", "vec3")) for c in CORNERS}
+        corners = {c: self.enu(field(self.data, self.path, f"{name}.coordinates.{c}", "vec3"))
+                   for c in CORNERS}
         normal_hint = np.asarray(field(self.data, self.path, f"{name}.normal_vector", "vec3"), dtype=float)
         return plane_from_corners(name, corners, normal_hint)
 
@@ -175,8 +176,9 @@ class Tower:
 def plane_from_corners(name: str, corners: dict[str, np.ndarray], normal_hint: np.ndarray) -> PlaneTarget:
     """Target plane from its ENU corners (dict of CORNERS -> (3,) m); the normal's sign follows
     `normal_hint` (PAINT's ``normal_vector``, towards the field)."""
-    right = 0.5 * ((corners["upper_right"] - corners["upper_left"]) + (corners["lower_right"] - corners["lower_left"]))
-    up = 0.5 * ((corners["upper_left"] - corners["lower_left"]) + (corners["upper_right"] - corners["lower_right"]))
+    c = corners
+    right = 0.5 * ((c["upper_right"] - c["upper_left"]) + (c["lower_right"] - c["lower_left"]))
+    up = 0.5 * ((c["upper_left"] - c["lower_left"]) + (c["upper_right"] - c["lower_right"]))
     normal = np.cross(right, up)
     normal /= np.linalg.norm(normal)
     if normal @ normal_hint < 0:
@@ -216,7 +218,7 @@ def read_flux_png(path: Path) -> np.ndarray:
     from PIL import Image, UnidentifiedImageError  # Pillow: a dependency of matplotlib and scikit-image
 
     if not path.is_file():
-        raise DataError(f"{path} does not exist (every <id>-calibration-properties.json needs its <id>-flux.png)")
+        raise DataError(f"{path} does not exist (each <id>{CALIBRATION_SUFFIX} needs its <id>-flux.png)")
     try:
         with Image.open(path) as img:
             img.load()
@@ -285,18 +287,18 @@ def read_heliostat_properties(path: Path, tower: Tower) -> tuple[Heliostat, dict
     length = np.linalg.norm(normal, axis=-1, keepdims=True)
     if not (length > 0).all():
         bad = int(np.flatnonzero(length[:, 0] <= 0)[0])
-        raise DataError(f"{path}: facet_properties.facets[{bad}]: canting_e and canting_n are zero or parallel; "
-                        "expected the facet's half-width and half-height vectors")
+        raise DataError(f"{path}: facet_properties.facets[{bad}]: canting_e and canting_n are zero or "
+                        "parallel; expected the facet's half-width and half-height vectors")
     normal /= length
     size = 2.0 * np.stack((np.linalg.norm(half_e, axis=-1), np.linalg.norm(half_n, axis=-1)), axis=-1)
-    n = len(translation)
-    t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
+    n, f64 = len(translation), torch.float64
     heliostat = Heliostat(
-        position=t(position), mount="juelich", facet_translation=t(translation), facet_size=t(size),
-        facet_normal=t(normal), facet_focal_length=None,
-        control_heights=torch.zeros(n, CONTROL_POINTS, CONTROL_POINTS, dtype=torch.float64),
-        canting_error=torch.zeros(n, 2, dtype=torch.float64),
-        tracking_error=torch.zeros(len(TRACKING_PARAMETERS), dtype=torch.float64),
+        position=torch.as_tensor(position, dtype=f64), mount="juelich",
+        facet_translation=torch.as_tensor(translation, dtype=f64), facet_size=torch.as_tensor(size, dtype=f64),
+        facet_normal=torch.as_tensor(normal, dtype=f64), facet_focal_length=None,
+        control_heights=torch.zeros(n, CONTROL_POINTS, CONTROL_POINTS, dtype=f64),
+        canting_error=torch.zeros(n, 2, dtype=f64),
+        tracking_error=torch.zeros(len(TRACKING_PARAMETERS), dtype=f64),
     )
     source = {"source": "PAINT", "heliostat_properties": str(path), "dropped_normal_offset_m": normal_offset,
               "canting_type": data.get("facet_properties", {}).get("canting_type"),
@@ -322,10 +324,11 @@ def _sort_key(mid: str):
 def read_measurements(folder: Path, tower: Tower, targets: list[str] | None) -> list[Measurement]:
     """Every measurement of a heliostat folder (numeric ids first, in order), optionally only
     those on `targets`; DataError if there are none."""
-    paths = sorted(folder.glob(f"*{CALIBRATION_SUFFIX}"), key=lambda p: _sort_key(p.name[: -len(CALIBRATION_SUFFIX)]))
+    paths = sorted(folder.glob(f"*{CALIBRATION_SUFFIX}"),
+                   key=lambda p: _sort_key(p.name[: -len(CALIBRATION_SUFFIX)]))
     if not paths:
-        geometry = "its heliostat-properties.json is there: import the geometry alone (--heliostat-output)" if (
-            folder / PROPERTIES_FILE).is_file() else "and no heliostat-properties.json either"
+        geometry = ("its heliostat-properties.json is there: import the geometry alone (--heliostat-output)"
+                    if (folder / PROPERTIES_FILE).is_file() else "and no heliostat-properties.json either")
         raise DataError(f"{folder} has no measurements (no *{CALIBRATION_SUFFIX}); {geometry}")
     measurements = [read_measurement(p, tower) for p in paths]
     if targets is not None:
@@ -344,7 +347,8 @@ def split_labels(measurements: list[Measurement], holdout: list[str], folder: Pa
     ids = [m.id for m in measurements]
     unknown = [h for h in holdout if h not in ids]
     if unknown:
-        raise DataError(f"holdout ids {unknown} are not measurements in {folder}; measurements: {', '.join(ids)}")
+        raise DataError(f"holdout ids {unknown} are not measurements in {folder}; "
+                        f"measurements: {', '.join(ids)}")
     train = [m for m in measurements if m.id not in holdout]
     if not train:
         raise DataError(f"holdout holds every measurement of {folder}; at least one must stay for training")
@@ -398,8 +402,9 @@ def import_paint(
     geometry, source = read_heliostat_properties(folder / PROPERTIES_FILE, tower)
     ds = None
     if dataset_path is not None:
+        spec = {"paint_dir": str(paint_dir), "targets": targets}
         ds = build_dataset(measurements, tower, geometry, tuple(resolution), list(holdout), folder,
-                           dataset or heliostat, heliostat, spec={"paint_dir": str(paint_dir), "targets": targets})
+                           dataset or heliostat, heliostat, spec)
     written: list[Path] = []
     try:
         if ds is not None:
@@ -414,8 +419,9 @@ def import_paint(
     return ds
 
 
-def build_dataset(measurements: list[Measurement], tower: Tower, geometry: Heliostat, resolution: tuple[int, int],
-                  holdout: list[str], folder: Path, dataset: str, heliostat: str, spec: dict) -> CalibrationDataset:
+def build_dataset(measurements: list[Measurement], tower: Tower, geometry: Heliostat,
+                  resolution: tuple[int, int], holdout: list[str], folder: Path, dataset: str, heliostat: str,
+                  spec: dict) -> CalibrationDataset:
     """The CalibrationDataset of a heliostat's measurements (images resampled to `resolution`)."""
     raw = [read_flux_png(m.flux_png) for m in measurements]
     images = np.stack([resample_area(img, resolution) for img in raw]).astype(np.float32)
@@ -426,9 +432,11 @@ def build_dataset(measurements: list[Measurement], tower: Tower, geometry: Helio
     position = geometry.position.numpy()
     mixed = len(set(names)) > 1
     if mixed:
-        log.warning("%s: measurements on %d targets (%s); root attributes target_* describe %s, per-image "
-                    "geometry is in extras/target_*", folder, len(set(names)), ", ".join(sorted(set(names))), main)
-    params = {"dataset": dataset, "heliostat": heliostat, "resolution": list(resolution), "holdout": holdout, **spec}
+        log.warning("%s: measurements on %d targets (%s); root attributes target_* describe %s, "
+                    "per-image geometry is in extras/target_*", folder, len(set(names)),
+                    ", ".join(sorted(set(names))), main)
+    params = {"dataset": dataset, "heliostat": heliostat, "resolution": list(resolution), "holdout": holdout,
+              **spec}
     attrs = {
         "dataset": dataset,
         "heliostat": heliostat,

@@ -30,7 +30,8 @@ from ..physics.target import Target, centroid
 
 DEFAULT_SUNSHAPE = {"kind": "pillbox", "half_angle_mrad": 4.65}
 SHAPE_THRESHOLD = 0.1  # spot moments use the pixels above this fraction of the image's peak
-_EXTRAS = ("measurement_id", "target_name", "target_center_m", "target_normal", "target_size_m", "focal_spot_enu_m")
+_EXTRAS = ("measurement_id", "target_name", "target_center_m", "target_normal", "target_size_m",
+           "focal_spot_enu_m")
 
 
 def centroid_check(dataset_path: str | os.PathLike, heliostat_path: str | os.PathLike,
@@ -53,28 +54,34 @@ def centroid_check(dataset_path: str | os.PathLike, heliostat_path: str | os.Pat
     ds = read_dataset(dataset_path)
     missing = [k for k in _EXTRAS if k not in ds.extras]
     if missing:
-        raise DataError(f"{dataset_path}: missing extras {missing}; expected a dataset from `helioflow import-paint`")
-    physics = resolve({"sunshape": sunshape or DEFAULT_SUNSHAPE}, read_heliostat(heliostat_path).ideal(), 1000.0)
+        raise DataError(f"{dataset_path}: missing extras {missing}; expected a dataset from "
+                        "`helioflow import-paint`")
+    ideal = read_heliostat(heliostat_path).ideal()
+    physics = resolve({"sunshape": sunshape or DEFAULT_SUNSHAPE}, ideal, 1000.0)
     heliostat = physics.heliostat.to("cpu", torch.float64)
     e = ds.extras
     rows = []
     for i in range(len(ds.images)):
+        width, height = (float(x) for x in e["target_size_m"][i])
         target = Target(torch.as_tensor(e["target_center_m"][i]), torch.as_tensor(e["target_normal"][i]),
-                        float(e["target_size_m"][i][0]), float(e["target_size_m"][i][1]), tuple(ds.images.shape[1:]))
-        az, el = (torch.tensor([np.radians(a)], dtype=torch.float64) for a in (ds.azimuth_deg[i], ds.elevation_deg[i]))
+                        width, height, tuple(ds.images.shape[1:]))
+        az, el = (torch.tensor([np.radians(a)], dtype=torch.float64)
+                  for a in (ds.azimuth_deg[i], ds.elevation_deg[i]))
         with torch.no_grad():
-            ideal = trace(heliostat, target, az, el, physics.optics, rays=0, splat="kernel",
+            spot = trace(heliostat, target, az, el, physics.optics, rays=0, splat="kernel",
                           cells_per_side=cells_per_side)
         measured = torch.as_tensor(ds.images[i : i + 1], dtype=torch.float64)
         slant = float(np.linalg.norm(e["target_center_m"][i] - heliostat.position.numpy()))
-        sim, meas = centroid(ideal, target)[0].numpy(), centroid(measured, target)[0].numpy()
+        sim, meas = centroid(spot, target)[0].numpy(), centroid(measured, target)[0].numpy()
         utis = target.to_plane(torch.as_tensor(e["focal_spot_enu_m"][i])).numpy()
         rows.append({
             "id": str(e["measurement_id"][i]), "target": str(e["target_name"][i]),
             "azimuth_deg": float(ds.azimuth_deg[i]), "elevation_deg": float(ds.elevation_deg[i]),
-            "slant_m": slant, "ideal_uv_m": sim.tolist(), "image_uv_m": meas.tolist(), "utis_uv_m": utis.tolist(),
+            "slant_m": slant,
+            "ideal_uv_m": sim.tolist(), "image_uv_m": meas.tolist(), "utis_uv_m": utis.tolist(),
             **_offsets("image", meas - sim, slant), **_offsets("utis", utis - sim, slant),
-            "spot_angle_deg": {"ideal": spot_angle(ideal[0], target), "measured": spot_angle(measured[0], target)},
+            "spot_angle_deg": {"ideal": spot_angle(spot[0], target),
+                               "measured": spot_angle(measured[0], target)},
         })
     return rows
 
@@ -101,8 +108,9 @@ def spot_angle(image: torch.Tensor, target: Target) -> float:
 
 def format_table(rows: list[dict]) -> str:
     """The per-image offsets as a fixed-width text table (mrad, deg)."""
-    lines = [f"{'id':>8} {'target':>26} {'az':>7} {'el':>6} {'slant':>6} {'right':>7} {'up':>7} {'total':>6}"
-             f" {'utis':>6} {'angle ideal/meas':>17}"]
+    header = (f"{'id':>8} {'target':>26} {'az':>7} {'el':>6} {'slant':>6} {'right':>7} {'up':>7} {'total':>6}"
+              f" {'utis':>6} {'angle ideal/meas':>17}")
+    lines = [header]
     for r in rows:
         a = r["spot_angle_deg"]
         lines.append(f"{r['id']:>8} {r['target']:>26} {r['azimuth_deg']:7.1f} {r['elevation_deg']:6.1f}"
@@ -116,5 +124,6 @@ def write_centroid_check(rows: list[dict], path: str | os.PathLike) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps({"units": {"offsets": "mrad", "uv": "m", "angles": "deg"}, "images": rows}, indent=2))
+    units = {"offsets": "mrad", "uv": "m", "angles": "deg"}
+    tmp.write_text(json.dumps({"units": units, "images": rows}, indent=2))
     os.replace(tmp, path)
