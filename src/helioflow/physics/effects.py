@@ -83,6 +83,8 @@ REGISTRY: dict[str, Effect] = {
         ), False, "atmospheric extinction over the slant range from mirror to target"),
         Effect("reflectivity", "ray power", (Parameter("value", 0.95, 0.0, 1.0, doc="mirror reflectivity (soiling)"),),
                False, "mirror reflectivity"),
+        Effect("blocking_shading", "rays lost on the way in or out", (), True,
+               "shading and blocking between neighbouring heliostats, from the field geometry (field traces only)"),
         Effect("camera", "the measured image", (
             Parameter("gain", 1.0, 0.0, None, doc="multiplies the flux"),
             Parameter("background_w_m2", 0.0, 0.0, None, doc="constant added to every pixel"),
@@ -103,7 +105,7 @@ def check_effects(effects: dict, where: str, allow_fit: bool) -> None:
         for key, value in (params or {}).items():
             known = [p.name for p in effect.parameters]
             if key not in known:
-                allowed = ", ".join(known) or "no parameters (values come from the heliostat's geometry)"
+                allowed = ", ".join(known) or f"none ({effect.doc})"
                 raise ConfigError(f"{where}.{name}: unknown parameter {key!r}; allowed: {allowed}")
             p = effect.parameter(key)
             if value == FIT:
@@ -134,11 +136,15 @@ def vittitoe_biggs(slant_range_m: Tensor, hazy: bool) -> Tensor:
 
 @dataclass(frozen=True)
 class Physics:
-    """Everything a trace needs, resolved from one effect list for one heliostat."""
+    """Everything a trace needs, resolved from one effect list for one heliostat.
+
+    blocking_shading: whether a field trace (field.field_flux) applies shading and blocking.
+    """
 
     optics: Optics
     heliostat: Heliostat
     camera: Camera | None
+    blocking_shading: bool = False
 
 
 def resolve(effects: dict, heliostat: Heliostat, dni: float) -> Physics:
@@ -182,4 +188,4 @@ def resolve(effects: dict, heliostat: Heliostat, dni: float) -> Physics:
         c = effects["camera"]
         camera = Camera(gain=c.get("gain", 1.0), background=c.get("background_w_m2", 0.0), blur_px=c.get("blur_px", 0.0),
                         noise=c.get("noise", 0.0), seed=int(c.get("seed", 0)))
-    return Physics(Optics(sun, slope, dni, reflectivity, transmittance), h, camera)
+    return Physics(Optics(sun, slope, dni, reflectivity, transmittance), h, camera, "blocking_shading" in effects)

@@ -217,12 +217,12 @@ def _splat_bilinear(
         power = torch.where((t > 0) & (axis[0] < 0), c.power[:, sl, None] / per_point, 0.0)
         col = torch.addcmul(pos[1], t, axis[1])
         row = torch.addcmul(pos[2], t, axis[2])
-        image = image + _deposit(col.reshape(n_sun, -1), row.reshape(n_sun, -1), power.reshape(n_sun, -1),
-                                 target.resolution)
+        image = image + deposit(col.reshape(n_sun, -1), row.reshape(n_sun, -1), power.reshape(n_sun, -1),
+                                target.resolution)
     return image
 
 
-def _deposit(col: Tensor, row: Tensor, power: Tensor, resolution: tuple[int, int]) -> Tensor:
+def deposit(col: Tensor, row: Tensor, power: Tensor, resolution: tuple[int, int]) -> Tensor:
     """Bilinear splat of weighted hits into images.
 
     Args:
@@ -310,7 +310,7 @@ def _splat_kernel(c: _Rays, target: Target, optics: Optics, n_facets: int) -> Te
     and the canvas is convolved (FFT) with the footprint of the facet's power-weighted mean ray.
     Flux from rays that land outside the canvas is not followed.
     """
-    density = _density_lookup(optics.sun, float(optics.slope_error))
+    density = density_lookup(optics.sun, float(optics.slope_error))
     n_sun, n_points = c.power.shape
     rows, cols = target.resolution
     pad_r, pad_c = rows // 2, cols // 2
@@ -321,7 +321,7 @@ def _splat_kernel(c: _Rays, target: Target, optics: Optics, n_facets: int) -> Te
     power = torch.where((t > 0) & (direction[0]["base"] < 0), c.power[..., None], 0.0)
     col = torch.addcmul(position[1]["base"], t, direction[1]["base"])
     row = torch.addcmul(position[2]["base"], t, direction[2]["base"])
-    deposit = _deposit(*(x.reshape(n_sun * n_facets, -1) for x in (col, row, power)), canvas.resolution)
+    deposited = deposit(*(x.reshape(n_sun * n_facets, -1) for x in (col, row, power)), canvas.resolution)
     central = c.along[:, :, 0, :]  # (S, P, 3) on (normal, right, up)
     length = central.norm(dim=-1)
     weight = power[..., 0].reshape(n_sun, n_facets, -1)
@@ -335,7 +335,7 @@ def _splat_kernel(c: _Rays, target: Target, optics: Optics, n_facets: int) -> Te
     pw, ph = target.pixel_size
     widest = float(spread.detach().max()) if spread.numel() else 0.0
     jr, jc = min(rows + pad_r, math.ceil(widest / ph) + 1), min(cols + pad_c, math.ceil(widest / pw) + 1)
-    kernel = _footprint(density, unit, path, target, (jr, jc))
+    kernel = footprint(density, unit, path, unit.new_tensor(target.pixel_size).expand(len(unit), 2), (jr, jc))
     # A footprint that lies wholly inside the kernel window carries exactly the ray's power;
     # renormalising removes the lattice error of sampling a hard-edged sun disc on pixels.
     inside = spread < min(jr * ph, jc * pw)
@@ -343,7 +343,7 @@ def _splat_kernel(c: _Rays, target: Target, optics: Optics, n_facets: int) -> Te
     kernel = torch.where(inside[:, None, None], kernel / total[:, None, None].clamp_min(1e-30), kernel)
     # (S * F, Hc + 2 Jr, Wc + 2 Jc) centred on the canvas; both factors are >= 0, so the clamp only
     # removes the FFT's round-off (which would otherwise leave tiny negative flux in the images).
-    flux = _convolve(deposit, kernel).clamp_min(0.0)
+    flux = convolve(deposited, kernel).clamp_min(0.0)
     flux = flux[:, jr + pad_r : jr + pad_r + rows, jc + pad_c : jc + pad_c + cols]
     return flux.reshape(n_sun, n_facets, rows, cols).sum(1) * target.pixel_area
 
@@ -357,7 +357,7 @@ def _density_table(sun: SunShape, slope_error: float, n: int = 8192) -> tuple[Te
     return radial_density(sun, slope_error)(theta), radius / (n - 1)
 
 
-def _density_lookup(sun: SunShape, slope_error: float) -> Callable[[Tensor], Tensor]:
+def density_lookup(sun: SunShape, slope_error: float) -> Callable[[Tensor], Tensor]:
     """theta (rad, any shape) -> density (1/sr) by linear interpolation in the cached table."""
     table, step = _density_table(sun, slope_error)
 
@@ -373,33 +373,37 @@ def _density_lookup(sun: SunShape, slope_error: float) -> Callable[[Tensor], Ten
     return density
 
 
-def _footprint(density, unit: Tensor, path: Tensor, target: Target, reach: tuple[int, int]) -> Tensor:
+def footprint(density, unit: Tensor, path: Tensor, pixel: Tensor, reach: tuple[int, int]) -> Tensor:
     """Flux (W/m^2 per W) of one ray around its hit point, at pixel offsets.
 
     Args:
         density: theta (rad) -> angular density (1/sr) of the beam spread.
         unit: (B, 3) unit ray direction projected on the target's (normal, right, up).
         path: (B,) distance from the mirror to the hit point (m).
+        pixel: (B, 2) pixel width and height (m) of each ray's grid.
         reach: (Jr, Jc) offsets -Jr..Jr rows and -Jc..Jc columns.
 
     Returns:
         (B, 2 Jr + 1, 2 Jc + 1) averaged over each pixel; row offset i means the pixel lies i rows
-        below the hit.
+        below the hit. The footprint is point-symmetric (theta depends on the offset squared), so
+        rows -Jr..0 are evaluated and the rest mirrored.
     """
-    pw, ph = target.pixel_size
     dtype, device = unit.dtype, unit.device
     sub = (torch.arange(FOOTPRINT_SUPERSAMPLING, dtype=dtype, device=device) + 0.5) / FOOTPRINT_SUPERSAMPLING - 0.5
-    du = (torch.arange(-reach[1], reach[1] + 1, dtype=dtype, device=device)[:, None] + sub).reshape(-1) * pw
-    dv = -(torch.arange(-reach[0], reach[0] + 1, dtype=dtype, device=device)[:, None] + sub).reshape(-1) * ph
+    du = (torch.arange(-reach[1], reach[1] + 1, dtype=dtype, device=device)[:, None] + sub).reshape(-1)
+    dv = -(torch.arange(-reach[0], 1, dtype=dtype, device=device)[:, None] + sub).reshape(-1)
+    du, dv = du * pixel[:, 0, None], dv * pixel[:, 1, None]  # (B, Wk * q), (B, Hk * q) in m
     eu, ev = unit[:, 1, None, None], unit[:, 2, None, None]
     inv_r2 = (1.0 / path**2)[:, None, None]
-    theta2 = (dv[:, None] ** 2 * (1 - ev**2) + du[None, :] ** 2 * (1 - eu**2) - 2 * eu * ev * du[None, :] * dv[:, None])
+    du, dv = du[:, None, :], dv[:, :, None]
+    theta2 = dv**2 * (1 - ev**2) + du**2 * (1 - eu**2) - 2 * eu * ev * du * dv
     theta = (theta2 * inv_r2).clamp_min(1e-24).sqrt()
-    fine = density(theta) * unit[:, 0, None, None].abs() * inv_r2  # (B, Hk * q, Wk * q)
-    return torch.nn.functional.avg_pool2d(fine[:, None], FOOTPRINT_SUPERSAMPLING)[:, 0]
+    fine = density(theta) * unit[:, 0, None, None].abs() * inv_r2  # (B, (Jr + 1) q, Wk q)
+    top = torch.nn.functional.avg_pool2d(fine[:, None], FOOTPRINT_SUPERSAMPLING)[:, 0]
+    return torch.cat((top, top[:, :-1].flip(-2, -1)), dim=-2)
 
 
-def _convolve(images: Tensor, kernels: Tensor) -> Tensor:
+def convolve(images: Tensor, kernels: Tensor) -> Tensor:
     """Full linear convolution of (B, H, W) images with (B, Hk, Wk) kernels via FFT: (B, H+Hk-1, W+Wk-1)."""
     full = (images.shape[-2] + kernels.shape[-2] - 1, images.shape[-1] + kernels.shape[-1] - 1)
     size = tuple(_fft_size(n) for n in full)
