@@ -1,4 +1,4 @@
-"""Benchmarks that print numbers: `python -m helioflow.bench raytrace`.
+"""Benchmarks that print numbers: `python -m helioflow.bench raytrace` or `... bench field`.
 
 raytrace: one 2 m x 2 m deformed heliostat 63 m from a 64 x 64 target (the sanity_check scene:
 Buie sun CSR 0.1, slope error 0.5 mrad), one sun position.
@@ -7,6 +7,13 @@ Buie sun CSR 0.1, slope error 0.5 mrad), one sun position.
   - time to reach PSNR 40 dB against a 10^8-ray bilinear reference image, for bilinear
     (doubling the rays) and kernel splatting (refining the surface grid); both in this process,
     so their ratio is measured under the same load.
+
+field: a flux map of 100, 300 and 1000 heliostats (radially staggered, north of a 60 m tower, each
+2 x 2 facets of 1.6 m x 1.25 m canted at its slant range, with its own seeded surface, canting and
+tracking errors) on an 8 m x 8 m receiver at 128 x 128, Buie sun CSR 0.1, slope error 1.5 mrad,
+clear-day attenuation, shading and blocking; one sun position. Each field in a fresh process:
+wall time of building the geometry and of the flux map (after a warm-up map of 10 heliostats that
+fills the footprint tables), peak RSS beside the RSS after imports, and the power budget.
 """
 
 from __future__ import annotations
@@ -20,6 +27,8 @@ import time
 import torch
 
 from .physics.effects import resolve
+from .physics.field import FieldHeliostats, field_flux, flat_receiver
+from .physics.layout import min_spacing, radial_staggered
 from .physics.raytrace import trace
 from .physics.target import Target
 from .data.surfaces import true_heliostat
@@ -122,13 +131,81 @@ def raytrace(threads: int, reference_rays: int) -> None:
             print(f"  kernel reaches 40 dB {found['bilinear'][0] / found['kernel'][0]:.0f}x sooner than bilinear")
 
 
+FIELD_SIZES = (100, 300, 1000)
+FIELD_EFFECTS = {"sunshape": {"kind": "buie", "csr": 0.1}, "slope_error": {"sigma_mrad": 1.5}, "tracking": {},
+                 "canting": {}, "surface": {}, "reflectivity": {"value": 0.95},
+                 "attenuation": {"model": "vittitoe_biggs_clear"}, "blocking_shading": {}}
+FIELD_SUN_DEG = (-30.0, 35.0)
+TOWER_M = 60.0
+
+
+def field_scene(n: int):
+    """(FieldHeliostats float32, receiver, physics of heliostat 0, azimuth (1,), elevation (1,)) of the
+    field benchmark with n heliostats."""
+    facet_w, facet_h, gap = 1.6, 1.25, 0.05
+    spacing = min_spacing(2 * facet_w + gap, 2 * facet_h + gap, clearance=1.0)
+    positions = radial_staggered(n, spacing, min_radius=40.0, height=2.0)
+    aim = torch.tensor([0.0, 0.0, TOWER_M], dtype=torch.float64)
+    physics = [
+        resolve(FIELD_EFFECTS, true_heliostat(HeliostatSpec(
+            name=f"h{i}", position_m=tuple(p.tolist()), mount="juelich", rows=2, cols=2, width_m=facet_w,
+            height_m=facet_h, gap_m=gap, canting_focal_distance_m=float((aim - p).norm()),
+            facet_focal_length_m=None, control_points=6, deformation_mm=0.2, tracking_error_mrad=0.5,
+            canting_error_mrad=0.5, seed=i)),
+            dni=1000.0)
+        for i, p in enumerate(positions)
+    ]
+    field = FieldHeliostats.stack([p.heliostat for p in physics], cells_per_side=8, dtype=torch.float32)
+    receiver = flat_receiver(aim, [0.0, 1.0, -0.45], 8.0, 8.0, (128, 128), dtype=torch.float32)
+    az, el = (torch.tensor([math.radians(a)]) for a in FIELD_SUN_DEG)
+    return field, receiver, physics[0], az, el
+
+
+def _field_worker(n: int, threads: int, queue) -> None:
+    torch.set_num_threads(threads)
+    base = _rss_mb()
+    start = time.perf_counter()
+    field, receiver, physics, az, el = field_scene(n)
+    setup = time.perf_counter() - start
+    options = {"blocking_shading": physics.blocking_shading}
+    with torch.no_grad():
+        field_flux(field_scene(10)[0], receiver, az, el, physics.optics, **options)  # warm-up
+        start = time.perf_counter()
+        result = field_flux(field, receiver, az, el, physics.optics, **options)
+        seconds = time.perf_counter() - start
+    totals = {k: v.item() for k, v in result.totals().items()}
+    queue.put((setup, seconds, _rss_mb(), base, totals))
+
+
+def field(threads: int) -> None:
+    print(f"helioflow field benchmark: 128x128 receiver, {threads} threads, torch {torch.__version__}")
+    print(f"{'heliostats':>10} {'setup s':>8} {'flux map s':>10} {'peak RSS MB':>12} {'after imports MB':>17}"
+          f" {'shaded':>7} {'blocked':>8} {'attenuated':>10} {'intercept':>9}")
+    ctx = mp.get_context("spawn")
+    for n in FIELD_SIZES:
+        queue = ctx.Queue()
+        proc = ctx.Process(target=_field_worker, args=(n, threads, queue))
+        proc.start()
+        setup, seconds, peak, base, t = queue.get()
+        proc.join()
+        reflected = t["reflected"]
+        print(f"{n:>10} {setup:>8.1f} {seconds:>10.1f} {peak:>12.0f} {base:>17.0f}"
+              f" {t['shaded'] / t['incident']:>7.1%} {t['blocked'] / reflected:>8.1%}"
+              f" {t['attenuated'] / reflected:>10.1%} {t['on_receiver'] / reflected:>9.1%}")
+    print("shaded: of the incident sunlight; blocked, attenuated and intercept (on the receiver): of the "
+          "reflected power")
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m helioflow.bench", description=__doc__.splitlines()[0])
-    ap.add_argument("name", choices=["raytrace"])
+    ap.add_argument("name", choices=["raytrace", "field"])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--reference-rays", type=int, default=10**8)
     args = ap.parse_args(argv)
-    raytrace(args.threads, args.reference_rays)
+    if args.name == "field":
+        field(args.threads)
+    else:
+        raytrace(args.threads, args.reference_rays)
 
 
 if __name__ == "__main__":

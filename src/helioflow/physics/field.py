@@ -43,14 +43,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
 
 from .geometry import normalize, reflect, sun_vector
 from .heliostat import REST_FRAME, Heliostat, facet_frames, ideal_joint_angles, joint_rotation, sample_surface
-from .raytrace import Optics, deposit, density_lookup, footprint
+from .raytrace import Optics, density_lookup, deposit, footprint
 from .sun import support_radius
 from .target import Target
 
@@ -94,7 +94,7 @@ class FieldHeliostats:
 
     @staticmethod
     def stack(heliostats: Sequence[Heliostat], cells_per_side: int = 8, dtype: torch.dtype | None = None
-              ) -> "FieldHeliostats":
+              ) -> FieldHeliostats:
         """Batch a list of heliostats that share the facet count and control-point grid.
 
         Args:
@@ -106,40 +106,52 @@ class FieldHeliostats:
             raise ValueError("a field needs at least one heliostat")
         first = heliostats[0]
         for i, h in enumerate(heliostats):
-            if h.facet_translation.shape != first.facet_translation.shape or \
-                    h.control_heights.shape != first.control_heights.shape:
-                raise ValueError(f"heliostat {i}: {h.n_facets} facets and control grid {tuple(h.control_heights.shape)} "
-                                 f"differ from heliostat 0 ({first.n_facets}, {tuple(first.control_heights.shape)}); "
-                                 "a field's heliostats must share the facet layout")
+            if (h.facet_translation.shape, h.control_heights.shape) != \
+                    (first.facet_translation.shape, first.control_heights.shape):
+                raise ValueError(f"heliostat {i}: {h.n_facets} facets, control grid "
+                                 f"{tuple(h.control_heights.shape)}; heliostat 0: {first.n_facets}, "
+                                 f"{tuple(first.control_heights.shape)}. A field's heliostats must share "
+                                 "the facet layout")
         dtype = dtype or first.facet_size.dtype
-        n, g2 = len(heliostats), cells_per_side**2
-        n_points = first.n_facets * g2
-        device = first.facet_size.device
-        points = torch.empty(n, n_points, 3, dtype=dtype, device=device)
-        normals, area = torch.empty_like(points), torch.empty(n, n_points, dtype=dtype, device=device)
-        # Heliostats with the same facet focal length are sampled as one heliostat with all their facets.
-        focal = [h.facet_focal_length for h in heliostats]
-        for f in dict.fromkeys(focal):
-            idx = [i for i, fi in enumerate(focal) if fi == f]
-            cat = lambda name: torch.cat([getattr(heliostats[i], name) for i in idx])  # noqa: E731
-            merged = replace(first, facet_focal_length=f, facet_translation=cat("facet_translation"),
-                             facet_size=cat("facet_size"), facet_normal=cat("facet_normal"),
-                             control_heights=cat("control_heights"), canting_error=cat("canting_error"))
-            s = sample_surface(merged, cells_per_side)
-            points[idx] = s.points.reshape(len(idx), n_points, 3).to(dtype)
-            normals[idx] = s.normals.reshape(len(idx), n_points, 3).to(dtype)
-            area[idx] = s.area.reshape(len(idx), n_points).to(dtype)
-        stack = lambda name: torch.stack([getattr(h, name) for h in heliostats]).to(dtype)  # noqa: E731
+        points, normals, area = _sample(heliostats, cells_per_side)
+
+        def stack(name: str) -> Tensor:
+            return torch.stack([getattr(h, name) for h in heliostats]).to(dtype)
+
         translation, size = stack("facet_translation"), stack("facet_size")
         axes = torch.stack([facet_frames(h.facet_normal, h.canting_error) for h in heliostats]).to(dtype)
-        sag = torch.zeros(n, dtype=dtype, device=device)
-        curved = torch.tensor([f is not None for f in focal], device=device)
-        if curved.any():
-            sag[curved] = (size[curved] ** 2).sum(-1).amax(-1) / (16 * torch.tensor(
-                [f for f in focal if f is not None], dtype=dtype, device=device))
+        # a paraboloid facet rises (w^2 + h^2) / (16 f) at its corners
+        inverse_focal = torch.tensor([0.0 if h.facet_focal_length is None else 1 / h.facet_focal_length
+                                      for h in heliostats], dtype=dtype, device=size.device)
+        sag = (size**2).sum(-1).amax(-1) * inverse_focal / 16
         radius = (translation.norm(dim=-1) + size.norm(dim=-1) / 2).amax(-1) + sag
         return FieldHeliostats(stack("position"), tuple(h.mount for h in heliostats), stack("tracking_error"),
-                               points, normals, area, translation, axes, size / 2, radius)
+                               points.to(dtype), normals.to(dtype), area.to(dtype), translation, axes,
+                               size / 2, radius)
+
+
+def _sample(heliostats: Sequence[Heliostat], cells_per_side: int) -> tuple[Tensor, Tensor, Tensor]:
+    """heliostat.sample_surface of every heliostat: points (N, P, 3), normals (N, P, 3), areas (N, P).
+
+    Heliostats with the same facet focal length are sampled at once, as one heliostat with all
+    their facets (sampling treats facets independently)."""
+    first = heliostats[0]
+    n, n_points = len(heliostats), first.n_facets * cells_per_side**2
+    like = first.facet_size
+    points, normals = like.new_empty(n, n_points, 3), like.new_empty(n, n_points, 3)
+    area = like.new_empty(n, n_points)
+    focal = [h.facet_focal_length for h in heliostats]
+    for f in dict.fromkeys(focal):
+        group = [h for h, fh in zip(heliostats, focal) if fh == f]
+        index = [i for i, fh in enumerate(focal) if fh == f]
+        names = ("facet_translation", "facet_size", "facet_normal", "control_heights", "canting_error")
+        merged = replace(first, facet_focal_length=f,
+                         **{name: torch.cat([getattr(h, name) for h in group]) for name in names})
+        s = sample_surface(merged, cells_per_side)
+        points[index] = s.points.reshape(len(group), n_points, 3)
+        normals[index] = s.normals.reshape(len(group), n_points, 3)
+        area[index] = s.area.reshape(len(group), n_points)
+    return points, normals, area
 
 
 @dataclass
@@ -202,8 +214,8 @@ def field_flux(
         blocking_shading: trace shading and blocking between neighbours (effect `blocking_shading`).
         aim_points: (N, 3) or (3,) ENU aim points (m); default the receiver centre.
         neighbours: neighbours tested per heliostat and direction (see the module docstring).
-        chunk: heliostats traced at once; memory grows with it, not with N (~3 MB per heliostat
-            in float32 at WINDOW = 64).
+        chunk: heliostats traced at once; memory grows with it (a few MB per heliostat at
+            WINDOW = 64), not with N.
 
     Returns:
         FieldFlux with flux (S, H, W) W/m^2 and budget {term: (S, N) W}.
@@ -240,8 +252,9 @@ def _trace_sun(field, receiver, sun, aim, optics, blocking_shading, neighbours, 
     budget = {key: torch.zeros(n, dtype=image.dtype, device=image.device) for key in BUDGET_TERMS}
     for start in range(0, n, chunk):
         rows = torch.arange(start, min(start + chunk, n), device=image.device)
-        part, terms = _trace_chunk(field, rows, rot, rects, receiver, sun, aim, optics,
-                                   None if shade_idx is None else tuple((i[rows], v[rows]) for i, v in (shade_idx, block_idx)))
+        candidates = None if shade_idx is None else tuple((i[rows], v[rows])
+                                                           for i, v in (shade_idx, block_idx))
+        part, terms = _trace_chunk(field, rows, rot, rects, receiver, sun, aim, optics, candidates)
         image = image + part
         for key, value in terms.items():
             budget[key][rows] = value
@@ -355,9 +368,8 @@ def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics:
     """
     rows, cols = receiver.resolution
     pw, ph = receiver.pixel_size
-    dtype = points.dtype
-    centre, normal = receiver.center.to(dtype), receiver.normal.to(dtype)
-    right, up = (a.to(dtype) for a in receiver.axes())
+    centre, normal = receiver.center.to(points.dtype), receiver.normal.to(points.dtype)
+    right, up = (a.to(points.dtype) for a in receiver.axes())
     toward = ray @ normal  # (B, P) < 0 for rays that travel towards the receiver's face
     t = ((centre - points) @ normal) / torch.where(toward < 0, toward, -torch.ones_like(toward))
     power = torch.where((toward < 0) & (t > 0), power, torch.zeros_like(power))
@@ -366,48 +378,65 @@ def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics:
     y = (receiver.height / 2 - hit @ up) / ph
     # One footprint per heliostat: that of its power-weighted mean ray.
     total = power.sum(-1, keepdim=True)
-    weight = torch.where(total > 0, power / total.clamp_min(1e-30), torch.full_like(power, 1 / power.shape[1]))
-    frame = torch.stack((normal, right, up), dim=-1)
-    unit = normalize((weight[..., None] * ray).sum(1)) @ frame  # (B, 3) on (normal, right, up)
+    weight = torch.where(total > 0, power / total.clamp_min(1e-30), 1 / power.shape[1])
+    unit = normalize((weight[..., None] * ray).sum(1)) @ torch.stack((normal, right, up), dim=-1)  # (B, 3)
     path = (weight * t).sum(-1)
-    spread = support_radius(optics.sun, optics.slope_error)
-    reach = spread * path / unit[:, 0].abs().clamp_min(1e-6)  # (B,) m on the receiver
-    # Each spot's grid: WINDOW cells of k x k pixels covering its deposits and, within the receiver,
-    # everything the footprint reaches, with one cell of margin each side.
+    reach = support_radius(optics.sun, optics.slope_error) * path / unit[:, 0].abs().clamp_min(1e-6)  # (B,) m
     lit = power > 0
-    inf = torch.full_like(x, math.inf)
-    lo_x = torch.where(lit, x, inf).amin(-1).nan_to_num(cols / 2, cols / 2, cols / 2)
-    hi_x = torch.where(lit, x, -inf).amax(-1).nan_to_num(cols / 2, cols / 2, cols / 2)
-    lo_y = torch.where(lit, y, inf).amin(-1).nan_to_num(rows / 2, rows / 2, rows / 2)
-    hi_y = torch.where(lit, y, -inf).amax(-1).nan_to_num(rows / 2, rows / 2, rows / 2)
-    lo_x, hi_x = torch.minimum(lo_x, (lo_x - reach / pw).clamp(0, cols)), torch.maximum(hi_x, (hi_x + reach / pw).clamp(0, cols))
-    lo_y, hi_y = torch.minimum(lo_y, (lo_y - reach / ph).clamp(0, rows)), torch.maximum(hi_y, (hi_y + reach / ph).clamp(0, rows))
-    k_x = ((hi_x.ceil() - lo_x.floor()) / (WINDOW - 2)).ceil().clamp_min(1)
-    k_y = ((hi_y.ceil() - lo_y.floor()) / (WINDOW - 2)).ceil().clamp_min(1)
-    x0, y0 = lo_x.floor() - k_x, lo_y.floor() - k_y  # (B,) first pixel column / row of the grid
+    (x0, kx), (y0, ky) = _window(x, lit, reach / pw, cols), _window(y, lit, reach / ph, rows)
     # Deposit: padded grid coordinates, (1, 1) = centre of the first cell.
-    col = (x - x0[:, None]) / k_x[:, None] + 0.5
-    row = (y - y0[:, None]) / k_y[:, None] + 0.5
-    cells = deposit(col, row, power, (WINDOW, WINDOW))  # (B, WINDOW, WINDOW) W
-    cell = torch.stack((k_x * pw, k_y * ph), -1)  # (B, 2) cell width, height (m)
+    cells = deposit((x - x0) / kx + 0.5, (y - y0) / ky + 0.5, power, (WINDOW, WINDOW))  # (B, WINDOW, WINDOW)
+    cell = torch.cat((kx * pw, ky * ph), -1)  # (B, 2) cell width, height (m)
     if optics.sun.kind == "point" and optics.slope_error == 0:
         flux = cells / (cell[:, 0] * cell[:, 1])[:, None, None]  # the beam does not spread
     else:
-        kernel = footprint(density_lookup(optics.sun, float(optics.slope_error)), unit, path, cell,
-                           (WINDOW - 1, WINDOW - 1))
-        # A footprint wholly inside its window carries exactly the ray's power (cf. raytrace).
-        inside = reach < (WINDOW - 1) * cell.amin(-1)
-        norm = kernel.sum((-2, -1)) * cell[:, 0] * cell[:, 1]
-        kernel = torch.where(inside[:, None, None], kernel / norm[:, None, None].clamp_min(1e-30), kernel)
-        # Circular convolution of period 2 WINDOW: the wrapped sums land outside the crop.
-        size = (2 * WINDOW, 2 * WINDOW)
-        spectrum = torch.fft.rfft2(cells, s=size) * torch.fft.rfft2(kernel, s=size)
-        flux = torch.fft.irfft2(spectrum, s=size)[:, WINDOW - 1 : 2 * WINDOW - 1, WINDOW - 1 : 2 * WINDOW - 1]
-        flux = flux.clamp_min(0.0)  # both factors are >= 0: removes the FFT's round-off
+        flux = _convolve_footprint(cells, unit, path, cell, reach, optics)
     # Bilinear interpolation of the cell averages at the receiver's pixel centres (align_corners:
     # -1 and 1 are the centres of the first and last cells).
-    gx = ((torch.arange(cols, dtype=dtype, device=x.device) + 0.5 - x0[:, None]) / k_x[:, None] - 0.5) * 2 / (WINDOW - 1) - 1
-    gy = ((torch.arange(rows, dtype=dtype, device=x.device) + 0.5 - y0[:, None]) / k_y[:, None] - 0.5) * 2 / (WINDOW - 1) - 1
+    gx = ((torch.arange(cols, dtype=x.dtype, device=x.device) + 0.5 - x0) / kx - 0.5) * 2 / (WINDOW - 1) - 1
+    gy = ((torch.arange(rows, dtype=x.dtype, device=x.device) + 0.5 - y0) / ky - 0.5) * 2 / (WINDOW - 1) - 1
     grid = torch.stack(torch.broadcast_tensors(gx[:, None, :], gy[:, :, None]), dim=-1)  # (B, H, W, 2)
     return torch.nn.functional.grid_sample(flux[:, None], grid, mode="bilinear", padding_mode="zeros",
                                            align_corners=True)[:, 0]
+
+
+def _window(x: Tensor, lit: Tensor, reach: Tensor, pixels: int) -> tuple[Tensor, Tensor]:
+    """Along one receiver axis, each spot's grid of WINDOW cells of k pixels: it covers the lit
+    deposits and, within the receiver, everything the footprint reaches, with one cell of margin.
+
+    Args:
+        x: (B, P) deposit coordinates in pixels (pixel j spans [j, j + 1)); lit: (B, P) which carry power;
+        reach: (B,) the footprint's reach in pixels; pixels: the receiver's size in pixels.
+
+    Returns:
+        first pixel coordinate of the grid x0 (B, 1) and cell size k (B, 1) in pixels (integers >= 1).
+    """
+    inf = torch.full_like(x, math.inf)
+    centre = pixels / 2  # a heliostat with no lit cell: any window, it deposits nothing
+    lo = torch.where(lit, x, inf).amin(-1).nan_to_num(centre, centre, centre)
+    hi = torch.where(lit, x, -inf).amax(-1).nan_to_num(centre, centre, centre)
+    lo = torch.minimum(lo, (lo - reach).clamp(0, pixels))
+    hi = torch.maximum(hi, (hi + reach).clamp(0, pixels))
+    k = ((hi.ceil() - lo.floor()) / (WINDOW - 2)).ceil().clamp_min(1)
+    return (lo.floor() - k)[:, None], k[:, None]
+
+
+def _convolve_footprint(cells: Tensor, unit: Tensor, path: Tensor, cell: Tensor, reach: Tensor,
+                        optics: Optics) -> Tensor:
+    """(B, WINDOW, WINDOW) deposited power (W) convolved with each heliostat's footprint: flux (W/m^2).
+
+    Args:
+        unit: (B, 3) mean ray on the receiver's (normal, right, up); path: (B,) its length (m);
+        cell: (B, 2) cell width and height (m); reach: (B,) the footprint's reach (m).
+    """
+    kernel = footprint(density_lookup(optics.sun, float(optics.slope_error)), unit, path, cell,
+                       (WINDOW - 1, WINDOW - 1))
+    # A footprint wholly inside its window carries exactly the ray's power (cf. raytrace).
+    inside = reach < (WINDOW - 1) * cell.amin(-1)
+    norm = kernel.sum((-2, -1)) * cell[:, 0] * cell[:, 1]
+    kernel = torch.where(inside[:, None, None], kernel / norm[:, None, None].clamp_min(1e-30), kernel)
+    # Circular convolution of period 2 WINDOW: the wrapped sums land outside the crop.
+    size = (2 * WINDOW, 2 * WINDOW)
+    flux = torch.fft.irfft2(torch.fft.rfft2(cells, s=size) * torch.fft.rfft2(kernel, s=size), s=size)
+    crop = slice(WINDOW - 1, 2 * WINDOW - 1)
+    return flux[:, crop, crop].clamp_min(0.0)  # both factors are >= 0: the clamp removes FFT round-off

@@ -41,14 +41,16 @@ def _check_layout(n: int, spacing: float, min_radius: float, sector_deg: float) 
     if not spacing > 0:
         raise ConfigError(f"field layout: spacing={spacing!r} m; expected > 0")
     if not min_radius >= spacing / 2:
-        raise ConfigError(f"field layout: min_radius={min_radius!r} m; expected >= spacing / 2 = {spacing / 2} m")
+        raise ConfigError(f"field layout: min_radius={min_radius!r} m; expected >= spacing / 2 "
+                          f"= {spacing / 2} m")
     if not 0 < sector_deg <= 360:
         raise ConfigError(f"field layout: sector_deg={sector_deg!r}; expected 0 < sector_deg <= 360")
 
 
 def _enu(radius: Tensor, bearing: Tensor, height: float) -> Tensor:
     """(n,) radii (m) and bearings from north towards east (rad) -> (n, 3) ENU positions."""
-    return torch.stack((radius * torch.sin(bearing), radius * torch.cos(bearing), torch.full_like(radius, height)), -1)
+    up = torch.full_like(radius, height)
+    return torch.stack((radius * torch.sin(bearing), radius * torch.cos(bearing), up), -1)
 
 
 def radial_staggered(n: int, spacing: float, min_radius: float, sector_deg: float = 180.0,
@@ -144,7 +146,7 @@ def nearest_distances(positions: Tensor, chunk: int = 1024) -> Tensor:
     out = []
     for start in range(0, len(positions), chunk):
         rows = positions[start : start + chunk]
-        d = torch.cdist(rows, positions, compute_mode="donot_use_mm_for_euclid_dist")  # exact, no cancellation
+        d = torch.cdist(rows, positions, compute_mode="donot_use_mm_for_euclid_dist")  # no cancellation
         d[torch.arange(len(rows)), torch.arange(start, start + len(rows))] = math.inf  # the point itself
         out.append(d.min(1).values)
     return torch.cat(out)
