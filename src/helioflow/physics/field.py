@@ -202,7 +202,7 @@ def field_flux(
     blocking_shading: bool = True,
     aim_points: Tensor | None = None,
     neighbours: int = 8,
-    chunk: int = 32,
+    chunk: int = 16,
 ) -> FieldFlux:
     """Flux maps of a whole field on a flat receiver, one per sun position, and the power budget.
 
