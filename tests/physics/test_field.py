@@ -369,3 +369,12 @@ def test_blocking_shading_is_a_registry_effect_for_world_and_model():
     with pytest.raises(ConfigError, match="model.effects.blocking_shading: unknown parameter 'radius'"):
         check_effects({"blocking_shading": {"radius": 3}}, "model.effects", allow_fit=True)
     assert not resolve({}, ideal_heliostat(), dni=1000.0).blocking_shading
+
+
+def test_bad_field_inputs_raise_clear_errors():
+    with pytest.raises(ValueError, match="share the facet layout"):
+        FieldHeliostats.stack([ideal_heliostat(1, 1), ideal_heliostat(2, 2)])
+    field = FieldHeliostats.stack([ideal_heliostat(position=(0.0, 50.0, 0.0))], 4)
+    receiver = flat_receiver([0.0, 0.0, 20.0], [0.0, 1.0, 0.0], 4.0, 4.0, (16, 16))
+    with pytest.raises(ValueError, match="below the horizon"):
+        field_flux(field, receiver, *_sun(0.0, -5.0), Optics(SunShape("pillbox")))

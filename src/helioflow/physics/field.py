@@ -12,9 +12,11 @@ range, ~1 %), and each heliostat's spot is computed on its own grid of WINDOW x 
 covers the spot's reach on the receiver, with cells an integer number k of receiver pixels wide,
 then interpolated bilinearly onto the receiver pixels. Near heliostats (small spots) get k = 1,
 the receiver's own pixels, which reproduces raytrace's kernel image; far ones, whose spots are
-smooth on the scale of the slope-error blur, get coarser cells. Shading and blocking act on whole
-cells (their central rays); the sun's finite size (penumbra), the tower's shadow and blocking by
-facets of the same heliostat are neglected.
+smooth on the scale of the slope-error blur, get coarser cells. For one heliostat the field tracer
+and raytrace.trace(splat="kernel") agree to 2e-4 in power on the receiver and 45-56 dB PSNR
+(tests/physics/test_field.py); both blur by the slope error isotropically (see raytrace). Shading
+and blocking act on whole cells (their central rays); the sun's finite size (penumbra), the
+tower's shadow and blocking by facets of the same heliostat are neglected.
 
 Shading and blocking. Shading: the ray from a cell towards the sun hits a neighbour's facet
 rectangle (either side) first. Blocking: the cell's reflected central ray hits a neighbour's facet
