@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 from collections import Counter
 
@@ -91,7 +92,8 @@ def cmd_plot_dataset(args) -> None:
 def cmd_train(args) -> None:
     from .models.registry import train_network
 
-    spec = _spec(args, workflow.train_params)
+    dataset = os.path.splitext(os.path.basename(args.dataset))[0]
+    spec = _spec(args, lambda config, model: workflow.train_params(config, dataset, model))
     train_network(spec["network"], spec["settings"], args.dataset, args.output, args.curve, args.curve_figure,
                   seed=spec["seed"], train_images=spec["train_images"])
 

@@ -118,6 +118,7 @@ def _check_references(config: dict, source: str) -> None:
             raise ConfigError(f"{source}: data_efficiency.networks has {network!r}, which is not in networks")
     for name, ds in config["datasets"].items():
         where = f"{source}: datasets.{name}"
+        check_effects(ds.get("model_effects"), f"{where}.model_effects", allow_fit=True)
         if ds["source"] == "paint":
             _check_paint_dataset(config, name, where)
             continue

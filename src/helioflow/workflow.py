@@ -13,6 +13,8 @@ from pathlib import Path
 
 from .errors import ConfigError
 
+PHYSICS_MODELS = ("raytrace", "drt")  # models that trace the heliostat file (models/physical.py)
+
 
 def results_dir(config: dict) -> str:
     """results/<experiment>."""
@@ -47,6 +49,13 @@ def world_effects(config: dict, dataset: str) -> dict:
     """world.effects with the dataset's `world_effects` entries replacing those of the same name."""
     effects = copy.deepcopy(config["world"].get("effects") or {})
     effects.update(copy.deepcopy(_dataset(config, dataset).get("world_effects") or {}))
+    return effects
+
+
+def model_effects(config: dict, dataset: str) -> dict:
+    """model.effects with the dataset's `model_effects` entries replacing those of the same name."""
+    effects = copy.deepcopy(config["model"].get("effects") or {})
+    effects.update(copy.deepcopy(_dataset(config, dataset).get("model_effects") or {}))
     return effects
 
 
@@ -151,14 +160,30 @@ def models(config: dict) -> list[str]:
     return names
 
 
-def train_params(config: dict, model: str) -> dict:
-    """Parameters of rule `train`: the network, its settings section, the seed, the train subset."""
+def train_params(config: dict, dataset: str, model: str) -> dict:
+    """Parameters of rule `train`: the network, its settings section, the seed, the train subset;
+    a physics model (raytrace, drt) also gets the dataset's model effects and heliostat file."""
     network, count = parse_model(model)
     networks = config.get("networks") or {}
     if network not in networks:
         raise ConfigError(f"unknown network {network!r}: config networks has {', '.join(networks)}")
-    return {"network": network, "settings": copy.deepcopy(networks[network] or {}), "seed": config["seed"],
-            "train_images": count}
+    settings = copy.deepcopy(networks[network] or {})
+    if network in PHYSICS_MODELS:
+        settings.update(effects=model_effects(config, dataset), heliostat_path=heliostat_path(config, dataset))
+    return {"network": network, "settings": settings, "seed": config["seed"], "train_images": count}
+
+
+def heliostat_path(config: dict, dataset: str) -> str:
+    """surfaces/<heliostat>.h5 of a dataset's heliostat."""
+    return f"{results_dir(config)}/surfaces/{dataset_heliostat(config, dataset)}.h5"
+
+
+def train_inputs(config: dict, dataset: str, model: str) -> dict:
+    """Files rule `train` reads: the dataset, and for a physics model the heliostat file."""
+    inputs = {"dataset": f"{results_dir(config)}/datasets/{dataset}.h5"}
+    if parse_model(model)[0] in PHYSICS_MODELS:
+        inputs["heliostat"] = heliostat_path(config, dataset)
+    return inputs
 
 
 def evaluate_params(config: dict) -> dict:

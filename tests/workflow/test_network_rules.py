@@ -4,7 +4,7 @@ import pytest
 
 from helioflow.config import load_config
 from helioflow.errors import ConfigError
-from helioflow.workflow import all_targets, efficiency_metrics, models, parse_model, train_params
+from helioflow.workflow import all_targets, efficiency_metrics, models, parse_model, train_inputs, train_params
 
 
 @pytest.fixture
@@ -22,15 +22,15 @@ def test_parse_model_names():
 
 
 def test_train_params_hold_only_the_network_section(config):
-    p = train_params(config, "cgan-n50")
+    p = train_params(config, "sanity_check", "cgan-n50")
     assert p == {"network": "cgan", "settings": {"steps": 3}, "seed": config["seed"], "train_images": 50}
     config["networks"]["nearest"] = {"steps": 7}
-    assert train_params(config, "cgan") == {**p, "train_images": None}
+    assert train_params(config, "sanity_check", "cgan") == {**p, "train_images": None}
 
 
 def test_unknown_network_is_named(config):
     with pytest.raises(ConfigError, match="'gan'.*nearest, cgan"):
-        train_params(config, "gan")
+        train_params(config, "sanity_check", "gan")
 
 
 def test_targets_include_metrics_table_and_data_efficiency(config):
@@ -50,3 +50,15 @@ def test_unknown_network_setting_stops_validation(config):
 
     with pytest.raises(ConfigError, match="networks.cgan: unknown setting 'stepz'"):
         validate_config(config)
+
+
+def test_physics_models_get_the_datasets_model_effects_and_heliostat_file(config):
+    config["networks"] = {"drt": {"fit_steps": 5}}
+    config["model"]["effects"] = {"sunshape": {"kind": "buie", "csr": 0.1}, "slope_error": {"sigma_mrad": "fit"}}
+    config["datasets"]["semi_sphere"]["model_effects"] = {"sunshape": {"kind": "point"}}
+    p = train_params(config, "semi_sphere", "drt")
+    assert p["settings"] == {"fit_steps": 5, "heliostat_path": "results/default/surfaces/multi_facet.h5",
+                             "effects": {"sunshape": {"kind": "point"}, "slope_error": {"sigma_mrad": "fit"}}}
+    assert train_inputs(config, "semi_sphere", "drt") == {"dataset": "results/default/datasets/semi_sphere.h5",
+                                                          "heliostat": "results/default/surfaces/multi_facet.h5"}
+    assert train_inputs(config, "semi_sphere", "nearest-n5") == {"dataset": "results/default/datasets/semi_sphere.h5"}

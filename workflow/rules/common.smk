@@ -20,6 +20,7 @@ from helioflow.workflow import (
     results_dir,
     surfaces_params,
     trace_params,
+    train_inputs,
     train_params,
 )
 

@@ -1,13 +1,13 @@
 rule train:
     """One network (or a data-efficiency run '<network>-n<images>') trained on a dataset's train split."""
     input:
-        dataset=f"{RESULTS}/datasets/{{dataset}}.h5",
+        unpack(lambda wc: train_inputs(config, wc.dataset, wc.model)),
     output:
         model=f"{RESULTS}/models/{{dataset}}/{{model}}.pt",
         curve=f"{RESULTS}/models/{{dataset}}/{{model}}_curve.csv",
         curve_figure=f"{RESULTS}/models/{{dataset}}/{{model}}_curve.png",
     params:
-        spec=lambda wc: json.dumps(train_params(config, wc.model)),
+        spec=lambda wc: json.dumps(train_params(config, wc.dataset, wc.model)),
     log:
         f"{RESULTS}/logs/train/{{dataset}}/{{model}}.log",
     benchmark:

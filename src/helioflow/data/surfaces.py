@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from ..config import HeliostatSpec
-from ..physics.heliostat import TRACKING_PARAMETERS, Heliostat, ideal_heliostat
+from ..physics.heliostat import TRACKING_PARAMETERS, Heliostat, ideal_heliostat, without_planes
 from ..errors import DataError
 from .hdf5 import read_arrays, write_arrays
 
@@ -34,7 +34,9 @@ def true_heliostat(spec: HeliostatSpec) -> Heliostat:
 
     Control-point heights ~ N(0, deformation_mm), each tracking parameter ~ N(0,
     tracking_error_mrad), each facet tilt ~ N(0, canting_error_mrad); one generator seeded by
-    spec.seed draws them in that order.
+    spec.seed draws them in that order. The effects are kept apart as the fits define them: each
+    facet's deformation has its plane removed (a facet tilt is canting), and the facet tilts of a
+    heliostat with several facets have zero mean (a common tilt is a tracking error).
     """
     ideal = ideal_heliostat(spec.rows, spec.cols, spec.width_m, spec.height_m, spec.gap_m, spec.position_m, spec.mount,
                             spec.canting_focal_distance_m, spec.facet_focal_length_m, spec.control_points)
@@ -43,8 +45,11 @@ def true_heliostat(spec: HeliostatSpec) -> Heliostat:
     heights = rng.normal(0.0, spec.deformation_mm * 1e-3, (n_facets, c, c))
     tracking = rng.normal(0.0, spec.tracking_error_mrad * 1e-3, len(TRACKING_PARAMETERS))
     canting = rng.normal(0.0, spec.canting_error_mrad * 1e-3, (n_facets, 2))
+    if n_facets > 1:
+        canting = canting - canting.mean(axis=0)
     t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
-    return replace(ideal, control_heights=t(heights), canting_error=t(canting), tracking_error=t(tracking))
+    return replace(ideal, control_heights=without_planes(t(heights)), canting_error=t(canting),
+                   tracking_error=t(tracking))
 
 
 def write_heliostat(path: str | os.PathLike, heliostat: Heliostat, spec: HeliostatSpec | None = None,

@@ -19,6 +19,7 @@ class NearestConfig:
 class Nearest(SpotModel):
     name = "nearest"
     controllable = True
+    uses_loop = False
 
     def __init__(self, config: NearestConfig, image_shape: tuple[int, int]):
         super().__init__()

@@ -24,6 +24,8 @@ NETWORKS = {
     "gan": ("helioflow.models.dcgan", "GanConfig", "DCGAN"),
     "cgan": ("helioflow.models.cgan", "CganConfig", "ConditionalGAN"),
     "nerf": ("helioflow.models.nerf", "NerfConfig", "SpotNeRF"),
+    "raytrace": ("helioflow.models.physical", "PhysicsConfig", "RaytraceModel"),
+    "drt": ("helioflow.models.physical", "PhysicsConfig", "DrtModel"),
 }
 LOOP_KEYS = ("steps", "batch_size", "checkpoint_every")
 MODEL_FORMAT = "helioflow.model/1"
@@ -43,7 +45,7 @@ def split_settings(network: str, settings: dict, seed: int, where: str | None = 
 
     Unknown keys raise ConfigError naming the key and the allowed ones.
     """
-    config_cls, _ = network_classes(network)
+    config_cls, model_cls = network_classes(network)
     fields = {f.name for f in dataclasses.fields(config_cls)}
     for key in settings:
         if key not in fields and key not in LOOP_KEYS:
@@ -54,7 +56,7 @@ def split_settings(network: str, settings: dict, seed: int, where: str | None = 
         config = config_cls(**{k: v for k, v in settings.items() if k in fields})
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where or 'networks.' + network}: {exc}") from None
-    if network == "nearest":
+    if not model_cls.uses_loop:
         loop = dataclasses.replace(loop, steps=0)
     return loop, config
 
@@ -79,7 +81,8 @@ def training_data(ds: CalibrationDataset, dataset_path, limit: int | None = None
 # config fields a network may take from the dataset's attributes when its settings leave them unset
 GEOMETRY_ATTRIBUTES = {"heliostat_position_m": "heliostat_position_m", "aim_point_m": "target_center_m",
                        "target_normal": "target_normal", "mount": "heliostat_mount",
-                       "canting_focal_distance_m": "canting_focal_distance_m"}
+                       "canting_focal_distance_m": "canting_focal_distance_m", "target_size_m": "target_size_m",
+                       "dni_w_m2": "dni_w_m2", "dataset_trace": "trace"}
 
 
 def dataset_geometry(network: str, attrs: dict) -> dict:
@@ -107,7 +110,7 @@ def train_network(network: str, settings: dict, dataset_path: str | os.PathLike,
     model = model_cls(config, tuple(data.images.shape[1:]))
     model.prepare(data)
     checkpoint = Path(str(model_path) + ".ckpt")
-    curve = train(model, data, loop, checkpoint, progress=progress)
+    curve = train(model, data, loop, checkpoint, progress=progress) or model.curve
     save_model(model_path, model, network, config, data.scale, {"dataset": str(dataset_path), "train_images": len(data),
                                                                "steps": loop.steps, "seed": seed})
     write_curve(curve, curve_csv, curve_png, f"{network} on {Path(dataset_path).stem}")

@@ -37,6 +37,7 @@ class Parameter:
     fittable: bool = True
     choices: tuple[str, ...] = ()
     doc: str = ""
+    array: bool = False  # a tensor of the heliostat (per-facet values): "fit" is its only config value
 
 
 @dataclass(frozen=True)
@@ -73,9 +74,12 @@ REGISTRY: dict[str, Effect] = {
         ), True, "small-scale random mirror slope errors"),
         Effect("tracking", "heliostat orientation per sun position", _TRACKING, True,
                "kinematic errors; unset parameters take the heliostat's true values"),
-        Effect("canting", "facet normals", (), True, "per-facet tilt errors, from the heliostat's geometry"),
-        Effect("surface", "surface normals", (), True,
-               "smooth deformation (B-spline control-point heights), from the heliostat's geometry"),
+        Effect("canting", "facet normals", (
+            Parameter("facet_tilts_mrad", None, -20.0, 20.0, array=True, doc="(F, 2) tilts about each facet's right/up axes"),
+        ), True, "per-facet tilt errors; unset: the heliostat's own"),
+        Effect("surface", "surface normals", (
+            Parameter("control_heights_mm", None, -20.0, 20.0, array=True, doc="(F, C, C) B-spline control-point heights"),
+        ), True, "smooth deformation (B-spline control-point heights); unset: the heliostat's own"),
         Effect("attenuation", "ray power", (
             Parameter("model", "vittitoe_biggs_clear", fittable=False,
                       choices=("vittitoe_biggs_clear", "vittitoe_biggs_hazy", "constant")),
@@ -108,6 +112,8 @@ def check_effects(effects: dict, where: str, allow_fit: bool) -> None:
                 allowed = ", ".join(known) or f"none ({effect.doc})"
                 raise ConfigError(f"{where}.{name}: unknown parameter {key!r}; allowed: {allowed}")
             p = effect.parameter(key)
+            if p.array and value != FIT:
+                raise ConfigError(f"{where}.{name}.{key} = {value!r}; a per-facet tensor: 'fit' or leave it out")
             if value == FIT:
                 if not (allow_fit and p.fittable):
                     raise ConfigError(f"{where}.{name}.{key}: 'fit' is only allowed for fittable model parameters")
@@ -120,6 +126,12 @@ def check_effects(effects: dict, where: str, allow_fit: bool) -> None:
                 raise ConfigError(f"{where}.{name}.{key} = {value!r}; expected a number")
             if (p.lower is not None and value < p.lower) or (p.upper is not None and value > p.upper):
                 raise ConfigError(f"{where}.{name}.{key} = {value!r}; expected {p.lower} <= value <= {p.upper}")
+
+
+def fitted_parameters(effects: dict) -> list[tuple[str, str]]:
+    """(effect, parameter) pairs marked "fit" in an effect list, in registry order."""
+    return [(e, p.name) for e in REGISTRY for p in REGISTRY[e].parameters
+            if e in (effects or {}) and (effects[e] or {}).get(p.name) == FIT]
 
 
 def vittitoe_biggs(slant_range_m: Tensor, hazy: bool) -> Tensor:

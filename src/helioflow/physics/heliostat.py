@@ -207,6 +207,27 @@ def bspline_basis(x: np.ndarray, n_control: int, degree: int = 3) -> tuple[np.nd
     return basis(degree), t1 - t2
 
 
+def greville(n_control: int, degree: int = 3) -> np.ndarray:
+    """(C,) Greville abscissae of the clamped uniform basis: control heights that are a linear
+    function of them give exactly that plane as the surface."""
+    inner = np.linspace(0.0, 1.0, n_control - degree + 1)
+    knots = np.concatenate((np.zeros(degree), inner, np.ones(degree)))
+    return np.array([knots[i + 1 : i + 1 + degree].mean() for i in range(n_control)])
+
+
+def without_planes(heights: Tensor) -> Tensor:
+    """(F, C, C) control heights minus each facet's least-squares plane (piston and two tilts)
+    over the Greville grid: what is left is shape. A facet's tilt is its canting error and its
+    piston moves nothing, so the surface effect is defined without them."""
+    c = heights.shape[-1]
+    g = torch.as_tensor(greville(c), dtype=heights.dtype, device=heights.device) - 0.5
+    y, x = torch.meshgrid(g, g, indexing="ij")
+    design = torch.stack((torch.ones_like(x), x, y), dim=-1).reshape(-1, 3)  # (C*C, 3)
+    projector = design @ torch.linalg.pinv(design)  # (C*C, C*C)
+    flat = heights.reshape(heights.shape[0], -1)
+    return (flat - flat @ projector.T).reshape(heights.shape)
+
+
 @dataclass
 class SurfaceSamples:
     """Equal-area samples of the mirror surface, in the heliostat frame.

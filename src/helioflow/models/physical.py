@@ -1,0 +1,162 @@
+"""Physics models scored like networks: `raytrace` (the configured model physics, its "fit"
+parameters fitted on the train split) and `drt` (differentiable raytracing: the heliostat's
+surface, facet canting, tracking errors and slope error fitted too - the paper's outlook).
+
+Both trace the design heliostat (ideal geometry from the heliostat file) onto the dataset's
+target; training is the fit of `physics_fit.fit_effects` on the train split (absolute loss:
+images divided by the dataset's maximum, as the metrics compare them), run once in `prepare`
+(the shared loop then runs no steps). The fit's loss per Adam step is the training curve.
+
+drt fits slope error as well as the surface control points: control points describe the
+large-scale shape, slope error the small-scale roughness below their resolution; both are
+properties of the mirror that the calibration images measure.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor
+
+from ..data.surfaces import read_heliostat
+from ..errors import ConfigError
+from ..physics.effects import FIT, REGISTRY, check_effects
+from ..physics.heliostat import Heliostat
+from ..physics.target import Target
+from .base import SpotModel, TrainingData
+from .physics_fit import FitResult, FitSettings, Measurements, Scene, fit_effects
+
+
+@dataclass(frozen=True)
+class PhysicsConfig:
+    """Settings of a physics model.
+
+    Attributes:
+        effects: the model's effect list ({effect: {parameter: value or "fit"}}), from config
+            `model.effects` (with the dataset's `model_effects` overrides).
+        heliostat_path: the heliostat file whose design (ideal) geometry is traced.
+        aim_point_m, target_normal, target_size_m: the target (m), from the dataset's attributes.
+        dni_w_m2: direct normal irradiance (W/m^2), from the dataset's attributes.
+        fit_steps: Adam steps per fitting round for heliostat tensors.
+        lr: Adam learning rate (mrad / mm per step at the start).
+        rounds: alternations of spread-scalar search and tensor descent.
+        fit_images: train images the fit uses (evenly spread over the train split; all if fewer).
+        cells_per_side: surface cells per facet side of the trace (fit and prediction).
+        dataset_trace: the dataset's own trace settings ({"splat", "rays", ...}), from its
+            attributes; a dataset traced with bilinear rays is fitted with `fit_rays` rays per
+            image (faster than kernel splatting for many facets) and predicted with its rays.
+        fit_rays: rays per image of a bilinear fit.
+    """
+
+    effects: dict = field(default_factory=dict)
+    heliostat_path: str = ""
+    aim_point_m: tuple[float, float, float] = (0.0, 0.0, 20.0)
+    target_normal: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    target_size_m: tuple[float, float] = (2.0, 2.0)
+    dni_w_m2: float = 1000.0
+    fit_steps: int = 150
+    lr: float = 0.05
+    rounds: int = 2
+    fit_images: int = 32
+    cells_per_side: int = 16
+    dataset_trace: dict | None = None
+    fit_rays: int = 100_000
+
+    def __post_init__(self):
+        check_effects(self.effects, "model.effects", allow_fit=True)
+        for key in ("fit_steps", "fit_images", "cells_per_side", "rounds", "fit_rays"):
+            if not (isinstance(getattr(self, key), int) and getattr(self, key) >= 1):
+                raise ConfigError(f"{key} = {getattr(self, key)!r}: expected an integer >= 1")
+
+
+def drt_effects(effects: dict, n_facets: int) -> dict:
+    """The drt effect list: the model's effects plus tracking (all parameters), surface, slope
+    error and (for more than one facet) canting marked "fit" where the model does not set them."""
+    out = {e: dict(p or {}) for e, p in effects.items()}
+    tracking = out.setdefault("tracking", {})
+    for p in REGISTRY["tracking"].parameters:
+        tracking.setdefault(p.name, FIT)
+    out.setdefault("surface", {}).setdefault("control_heights_mm", FIT)
+    out.setdefault("slope_error", {}).setdefault("sigma_mrad", FIT)
+    if n_facets > 1:
+        out.setdefault("canting", {}).setdefault("facet_tilts_mrad", FIT)
+    return out
+
+
+class RaytraceModel(SpotModel):
+    """The configured physics model; its "fit" parameters fitted on the train split."""
+
+    name = "raytrace"
+    controllable = True
+    uses_loop = False
+
+    def __init__(self, config: PhysicsConfig, image_shape: tuple[int, int]):
+        super().__init__()
+        self.config = config
+        self.image_shape = image_shape
+        self.heliostat: Heliostat | None = None
+        self.fitted = FitResult(config.effects, {})
+        self.scale = 1.0
+        self.curve: list[dict[str, float]] = []
+
+    def effects_to_fit(self, heliostat: Heliostat) -> dict:
+        return self.config.effects
+
+    def scene(self, fitting: bool = False) -> Scene:
+        """What the model traces: kernel splatting unless the dataset was traced with bilinear
+        rays (then `fit_rays` rays per image while fitting, the dataset's rays when predicting)."""
+        c = self.config
+        target = Target(torch.tensor(c.aim_point_m, dtype=torch.float32), torch.tensor(c.target_normal, dtype=torch.float32),
+                        float(c.target_size_m[0]), float(c.target_size_m[1]), tuple(self.image_shape))
+        trace = c.dataset_trace or {}
+        if trace.get("splat") == "bilinear":
+            rays = c.fit_rays if fitting else int(trace.get("rays", c.fit_rays))
+            return Scene(self.heliostat, target, c.dni_w_m2, splat="bilinear", rays=rays, cells_per_side=c.cells_per_side)
+        return Scene(self.heliostat, target, c.dni_w_m2, cells_per_side=c.cells_per_side)
+
+    def prepare(self, data: TrainingData) -> None:
+        """Fit the model's parameters to (a spread subset of) the training images."""
+        self.heliostat = read_heliostat(self.config.heliostat_path).ideal().to("cpu")
+        self.scale = data.scale
+        n = len(data)
+        index = torch.linspace(0, n - 1, min(n, self.config.fit_images)).round().long()
+        measured = Measurements(data.images[index], data.azimuth_deg[index], data.elevation_deg[index], data.scale)
+        c = self.config
+        settings = FitSettings(steps=c.fit_steps, lr=c.lr, rounds=c.rounds)
+        self.fitted = fit_effects(self.scene(fitting=True), self.effects_to_fit(self.heliostat), measured, settings,
+                                  progress=True, label=f"fit {self.name}")
+        self.curve = [{"step": i, "loss": v} for i, v in enumerate(self.fitted.history)]
+
+    def get_extra_state(self) -> dict:
+        h = self.heliostat
+        return {"heliostat": None if h is None else {k: v for k, v in vars(h).items()},
+                "effects": self.fitted.effects, "tensors": self.fitted.tensors, "scale": self.scale}
+
+    def set_extra_state(self, state: dict) -> None:
+        self.heliostat = None if state["heliostat"] is None else Heliostat(**state["heliostat"])
+        self.fitted = FitResult(state["effects"], state["tensors"])
+        self.scale = state["scale"]
+
+    def configure_optimizers(self) -> dict:
+        return {}
+
+    def training_step(self, batch, optimizers, generator) -> dict[str, float]:
+        return {}
+
+    def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor, generator: torch.Generator) -> Tensor:
+        """(N,) sun positions (deg) -> (N, H, W) images divided by the training scale."""
+        images = self.scene().simulate(self.fitted.effects, self.fitted.tensors, azimuth_deg.float(),
+                                       elevation_deg.float(), seed=1)
+        return images / self.scale
+
+
+class DrtModel(RaytraceModel):
+    """Differentiable raytracing: the heliostat's surface, canting, tracking and slope error
+    fitted with the model's effects (see `drt_effects`)."""
+
+    name = "drt"
+
+    def effects_to_fit(self, heliostat: Heliostat) -> dict:
+        return drt_effects(self.config.effects, heliostat.n_facets)

@@ -1,0 +1,297 @@
+"""Fit the parameters of a physics model (an effect list with "fit" values) to measured spots.
+
+The model is the tracer itself: `Scene.simulate` traces the design heliostat with an effect list
+and the heliostat tensors being fitted. Parameters are fitted in three ways, by what they are:
+
+- heliostat tensors (tracking errors (5,) mrad, canting tilts (F, 2) mrad, surface control-point
+  heights (F, C, C) mm): Adam through the differentiable tracer. Canting tilts enter without their
+  mean and heights without each facet's plane, so that no effect can mimic another (a common
+  tilt is tracking, a facet's tilt is canting);
+- spread scalars (sun shape, slope error, camera blur): golden-section search on a log scale
+  within the registry bounds (the kernel tracer is not differentiable in them);
+- linear scalars (camera gain, reflectivity, constant transmittance; camera background): closed
+  form, a least-squares line measured = a * predicted + b after every trace.
+
+With both tensors and spread scalars, the two are fitted in turn (`rounds`), tensors first:
+a spread searched before the tensors are fitted widens to cover their misfit.
+
+Two losses: "absolute" compares images divided by one scale (the dataset's maximum, as the
+metrics do); "shape" compares images each divided by its own sum, so a pure scale (reflectivity,
+attenuation, gain) changes nothing - what the diagnosis uses.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import torch
+from torch import Tensor
+from tqdm import tqdm
+
+from ..physics.effects import FIT, REGISTRY, fitted_parameters, resolve
+from ..physics.heliostat import Heliostat, without_planes
+from ..physics.raytrace import trace
+from ..physics.target import Target
+
+LOSSES = ("absolute", "shape")
+SCALES = {("camera", "gain"), ("reflectivity", "value"), ("attenuation", "transmittance")}
+OFFSETS = {("camera", "background_w_m2")}
+TENSORS = {"tracking": "tracking", "canting": "facet_tilts_mrad", "surface": "control_heights_mm"}
+GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+SEARCH_FLOOR = 0.02  # lowest value a spread scalar is searched from (its unit)
+SEARCH_CEILING = 20.0  # highest value a spread scalar is searched to
+
+
+@dataclass(frozen=True)
+class Scene:
+    """What a physics model traces.
+
+    Attributes:
+        heliostat: the design geometry (no errors), float32.
+        target: the calibration target.
+        dni: direct normal irradiance (W/m^2).
+        splat, rays, cells_per_side: trace settings (see physics.raytrace.trace); a point sun
+            without slope error has no beam-spread kernel and is traced with `rays` bilinear rays.
+    """
+
+    heliostat: Heliostat
+    target: Target
+    dni: float
+    splat: str = "kernel"
+    rays: int = 200_000
+    cells_per_side: int = 16
+
+    def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,
+                 seed: int = 0) -> Tensor:
+        """(N,) sun positions (deg) -> (N, H, W) images (W/m^2) under `effects` (numbers only for
+        scalars) with the heliostat tensors in `tensors` ({"tracking": (5,) mrad, "canting": (F, 2)
+        mrad, "surface": (F, C, C) mm}, each optional; "fit" entries of `effects` are taken from
+        them), differentiable in the tensors."""
+        scalars = {e: {k: v for k, v in (p or {}).items() if v != FIT} for e, p in effects.items()}
+        physics = resolve(scalars, self.heliostat, self.dni)
+        h = physics.heliostat
+        if "tracking" in tensors:
+            h = replace(h, tracking_error=tensors["tracking"] * 1e-3)
+        if "canting" in tensors:
+            h = replace(h, canting_error=zero_mean(tensors["canting"]) * 1e-3)
+        if "surface" in tensors:
+            h = replace(h, control_heights=without_planes(tensors["surface"]) * 1e-3)
+        sharp = physics.optics.sun.kind == "point" and physics.optics.slope_error == 0.0
+        flux = trace(h, self.target, torch.deg2rad(azimuth_deg), torch.deg2rad(elevation_deg), physics.optics,
+                     rays=self.rays, splat="bilinear" if sharp else self.splat, cells_per_side=self.cells_per_side,
+                     seed=seed)
+        return physics.camera.apply(flux) if physics.camera is not None else flux
+
+
+def zero_mean(tilts: Tensor) -> Tensor:
+    """(F, 2) facet tilts without their mean: a common tilt is a tracking error, not canting."""
+    return tilts - tilts.mean(dim=0)
+
+
+@dataclass
+class Measurements:
+    """Measured spots to fit: images (N, H, W) divided by `scale` (W/m^2), sun positions (N,) deg."""
+
+    images: Tensor
+    azimuth_deg: Tensor
+    elevation_deg: Tensor
+    scale: float
+
+
+@dataclass
+class FitResult:
+    """Fitted effect list (numbers; tensor parameters stay "fit"), tensors and the loss history."""
+
+    effects: dict
+    tensors: dict[str, Tensor]
+    history: list[float] = field(default_factory=list)
+
+    def fitted_values(self) -> dict[str, float | list]:
+        """{"effect.parameter": value} of every fitted parameter, tensors as nested lists (mrad/mm)."""
+        out = {}
+        for effect, name in fitted_parameters(self.effects):
+            out[f"{effect}.{name}"] = self.effects[effect][name]
+        for effect, tensor in self.tensors.items():
+            if effect == "tracking":
+                out.update({f"tracking.{n}": float(v) for n, v in zip(_tracking_names(), tensor.tolist())})
+            else:
+                out[f"{effect}.{TENSORS[effect]}"] = [round(v, 4) for v in tensor.flatten().tolist()]
+        return out
+
+
+def _tracking_names() -> list[str]:
+    return [p.name for p in REGISTRY["tracking"].parameters]
+
+
+def normalised(images: Tensor, loss: str, scale: float) -> Tensor:
+    """Images as a loss compares them: divided by `scale` ("absolute") or by their own sum times
+    the pixel count ("shape", mean value 1)."""
+    if loss == "absolute":
+        return images / scale
+    n = images.shape[-1] * images.shape[-2]
+    return images / images.sum((-2, -1), keepdim=True).clamp_min(1e-30) * n
+
+
+def initial_tensors(effects: dict, heliostat: Heliostat) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
+    """(tensors, masks) for the heliostat tensors an effect list fits: start values (given values
+    for tracking parameters, zeros otherwise) and which entries are free (bool, same shape)."""
+    tensors, masks = {}, {}
+    tracking = effects.get("tracking")
+    if tracking and any(v == FIT for v in tracking.values()):
+        names = _tracking_names()
+        tensors["tracking"] = torch.tensor([0.0 if tracking.get(n, 0.0) == FIT else float(tracking.get(n, 0.0))
+                                            for n in names])
+        masks["tracking"] = torch.tensor([tracking.get(n) == FIT for n in names])
+    if (effects.get("canting") or {}).get("facet_tilts_mrad") == FIT:
+        tensors["canting"] = torch.zeros(heliostat.n_facets, 2)
+        masks["canting"] = torch.ones(heliostat.n_facets, 2, dtype=torch.bool)
+    if (effects.get("surface") or {}).get("control_heights_mm") == FIT:
+        tensors["surface"] = torch.zeros(heliostat.control_heights.shape)
+        masks["surface"] = torch.ones(heliostat.control_heights.shape, dtype=torch.bool)
+    return tensors, masks
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """How hard to fit.
+
+    Attributes:
+        steps: Adam steps per round for heliostat tensors.
+        lr: Adam learning rate (mrad or mm per step at the start; decays linearly to 10 %).
+        rounds: alternations between spread scalars and tensors when both are fitted.
+        search_iterations: golden-section steps per spread scalar (each one trace).
+        surface_weight: L2 penalty on control heights (per mm^2), keeps unseen modes at zero.
+        loss: "absolute" or "shape" (see the module docstring).
+    """
+
+    steps: int = 150
+    lr: float = 0.05
+    rounds: int = 2
+    search_iterations: int = 14
+    surface_weight: float = 1e-4
+    loss: str = "absolute"
+
+
+def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSettings = FitSettings(),
+                progress: bool = False, label: str = "fit") -> FitResult:
+    """Fit every "fit" parameter of `effects` to the measured spots; see the module docstring."""
+    effects = {e: dict(p or {}) for e, p in effects.items()}
+    pairs = fitted_parameters(effects)
+    linear = [p for p in pairs if p in SCALES or p in OFFSETS]
+    spread = [p for p in pairs if p not in linear and not REGISTRY[p[0]].parameter(p[1]).array
+              and p[0] != "tracking"]
+    for e, k in pairs:  # start values: the registry default
+        if (e, k) in linear or (e, k) in spread:
+            effects[e][k] = REGISTRY[e].parameter(k).default
+    tensors, masks = initial_tensors(effects, scene.heliostat)
+    target = normalised(data.images, settings.loss, 1.0)
+    fit = _Fitter(scene, data, target, settings, linear)
+    history: list[float] = []
+    rounds = settings.rounds if (tensors and spread) else 1
+    for _ in range(rounds):
+        if tensors:
+            tensors, losses = fit.descend(effects, tensors, masks, progress, label)
+            history += losses
+        for e, k in spread:
+            effects[e][k] = fit.search(effects, tensors, e, k)
+    history.append(fit.loss(effects, tensors))
+    if linear:
+        effects = fit.with_linear(effects, tensors)
+    effective = {"tracking": lambda t: t, "canting": zero_mean, "surface": without_planes}
+    return FitResult(effects, {k: effective[k](v.detach()) for k, v in tensors.items()}, history)
+
+
+class _Fitter:
+    """The three fitting methods over one set of measurements."""
+
+    def __init__(self, scene: Scene, data: Measurements, target: Tensor, settings: FitSettings, linear: list):
+        self.scene, self.data, self.target, self.settings, self.linear = scene, data, target, settings, linear
+
+    def predict(self, effects: dict, tensors: dict) -> Tensor:
+        """Normalised prediction (N, H, W), linear scalars at their least-squares values."""
+        images = self.scene.simulate(self._unit_linear(effects), tensors, self.data.azimuth_deg,
+                                     self.data.elevation_deg) / self.data.scale
+        if self.linear:
+            a, b = self._line(images.detach())
+            images = a * images + b
+        return normalised(images, self.settings.loss, 1.0)
+
+    def loss(self, effects: dict, tensors: dict) -> float:
+        with torch.no_grad():
+            return float(((self.predict(effects, tensors) - self.target) ** 2).mean())
+
+    def search(self, effects: dict, tensors: dict, effect: str, name: str) -> float:
+        """Golden-section search of one spread scalar on a log scale within its bounds."""
+        p = REGISTRY[effect].parameter(name)
+        lo = math.log(max(p.lower or SEARCH_FLOOR, SEARCH_FLOOR))
+        hi = math.log(min(p.upper or SEARCH_CEILING, SEARCH_CEILING))
+
+        def cost(x: float) -> float:
+            return self.loss({**effects, effect: {**effects[effect], name: math.exp(x)}}, tensors)
+
+        a, b = hi - GOLDEN * (hi - lo), lo + GOLDEN * (hi - lo)
+        fa, fb = cost(a), cost(b)
+        for _ in range(self.settings.search_iterations):
+            if fa < fb:
+                hi, b, fb = b, a, fa
+                a = hi - GOLDEN * (hi - lo)
+                fa = cost(a)
+            else:
+                lo, a, fa = a, b, fb
+                b = lo + GOLDEN * (hi - lo)
+                fb = cost(b)
+        return round(math.exp(a if fa < fb else b), 4)
+
+    def descend(self, effects: dict, tensors: dict, masks: dict, progress: bool, label: str):
+        """Adam on the free entries of the heliostat tensors; returns (tensors, loss per step)."""
+        params = {k: v.clone().requires_grad_(True) for k, v in tensors.items()}
+        optimizer = torch.optim.Adam(params.values(), lr=self.settings.lr)
+        steps = self.settings.steps
+        schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda i: 1.0 - 0.9 * i / max(1, steps))
+        losses = []
+        bar = tqdm(range(steps), desc=label, disable=not progress, mininterval=2.0)
+        for _ in bar:
+            optimizer.zero_grad()
+            current = {k: torch.where(masks[k], v, tensors[k]) for k, v in params.items()}
+            loss = ((self.predict(effects, current) - self.target) ** 2).mean()
+            if "surface" in current:
+                loss = loss + self.settings.surface_weight * (current["surface"] ** 2).mean()
+            loss.backward()
+            optimizer.step()
+            schedule.step()
+            losses.append(float(loss.detach()))
+            bar.set_postfix(loss=f"{losses[-1]:.3e}")
+        return {k: torch.where(masks[k], v.detach(), tensors[k]) for k, v in params.items()}, losses
+
+    def _unit_linear(self, effects: dict) -> dict:
+        """Effects with the fitted linear scalars at their neutral values (scale 1, offset 0)."""
+        out = {e: dict(p) for e, p in effects.items()}
+        for e, k in self.linear:
+            out[e][k] = 1.0 if (e, k) in SCALES else 0.0
+        return out
+
+    def _line(self, images: Tensor) -> tuple[Tensor, Tensor]:
+        """Least-squares a, b of measured = a * images + b (b = 0 unless an offset is fitted)."""
+        x, y = images.flatten().double(), self.data.images.flatten().double()
+        if any(p in OFFSETS for p in self.linear):
+            a, b = torch.linalg.lstsq(torch.stack((x, torch.ones_like(x)), 1), y[:, None]).solution[:, 0]
+        else:
+            a, b = (x @ y) / (x @ x).clamp_min(1e-30), torch.zeros((), dtype=x.dtype)
+        return a.float(), b.float()
+
+    def with_linear(self, effects: dict, tensors: dict) -> dict:
+        """The effect list with the linear scalars at their least-squares values, within bounds."""
+        with torch.no_grad():
+            images = self.scene.simulate(self._unit_linear(effects), tensors, self.data.azimuth_deg,
+                                         self.data.elevation_deg) / self.data.scale
+        a, b = self._line(images)
+        out = self._unit_linear(effects)
+        scales = [p for p in self.linear if p in SCALES]
+        for e, k in scales[:1]:  # one scale factor is identifiable: the first takes it
+            p = REGISTRY[e].parameter(k)
+            out[e][k] = round(min(max(float(a), p.lower or 0.0), p.upper or math.inf), 5)
+        for e, k in self.linear:
+            if (e, k) in OFFSETS:
+                out[e][k] = round(max(float(b) * self.data.scale, 0.0), 4)
+        return out
