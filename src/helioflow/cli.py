@@ -122,6 +122,13 @@ def cmd_data_efficiency(args) -> None:
     logging.info("wrote %s and %s", args.figure, args.csv)
 
 
+def cmd_report(args) -> None:
+    from .evaluate.report import write_report
+
+    write_report(args.output, json.loads(args.inputs), args.benchmarks, args.experiment)
+    logging.info("wrote %s", args.output)
+
+
 def _with_spec(p: argparse.ArgumentParser) -> None:
     p.add_argument("--spec", help="the rule's parameters as JSON (what the Snakefile passes)")
     p.add_argument("--config", help="by hand: a config.yaml to take the parameters from")
@@ -198,6 +205,14 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=int, default=12, help="number of images shown")
     p.add_argument("--output", required=True, help="PNG file")
     p.set_defaults(func=cmd_plot_dataset)
+
+    p = sub.add_parser("report", help="the self-contained HTML report of an experiment")
+    p.add_argument("--inputs", required=True,
+                   help="JSON: report section -> list of files (what helioflow.workflow.report_inputs gives)")
+    p.add_argument("--benchmarks", help="the experiment's benchmarks/ folder (run times)")
+    p.add_argument("--experiment", required=True, help="the experiment's name (the title)")
+    p.add_argument("--output", required=True, help="report.html")
+    p.set_defaults(func=cmd_report)
     return ap
 
 

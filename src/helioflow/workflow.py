@@ -203,14 +203,40 @@ def efficiency_metrics(config: dict) -> list[str]:
     return [p for p in metrics_paths(config, include_efficiency=True) if p not in plain]
 
 
-def all_targets(config: dict) -> list[str]:
-    """What `snakemake all` builds."""
+def diagnosis_paths(config: dict) -> list[str]:
+    """diagnosis/<dataset>.json of every dataset when the config has a `diagnosis` section, else none."""
+    if "diagnosis" not in config:
+        return []
+    return [f"{results_dir(config)}/diagnosis/{d}.json" for d in config["datasets"]]
+
+
+def report_inputs(config: dict) -> dict[str, list[str]]:
+    """Files rule `report` reads, by report section; a section the config leaves out is an empty
+    list (the report says "not part of this experiment"). Together they are every final output."""
     r = results_dir(config)
-    figures = [f"{r}/figures/datasets/{d}.png" for d in config["datasets"]]
-    targets = dataset_paths(config) + figures
-    targets += [f"{r}/paint/{d}_centroids.json" for d in paint_datasets(config)]
-    if config.get("networks"):
-        targets += metrics_paths(config) + [f"{r}/tables/table1.md"]
-    if (config.get("data_efficiency") or {}).get("networks"):
-        targets += [f"{r}/figures/data_efficiency.png"]
-    return targets
+    datasets, networks = list(config["datasets"]), list(config.get("networks") or {})
+    diagnosed = [Path(p).stem for p in diagnosis_paths(config)]
+    efficiency = (config.get("data_efficiency") or {}).get("networks")
+    return {
+        "datasets": dataset_paths(config),
+        "dataset_figures": [f"{r}/figures/datasets/{d}.png" for d in datasets],
+        "paint_centroids": [f"{r}/paint/{d}_centroids.json" for d in paint_datasets(config)],
+        "table": [f"{r}/tables/table1.md", f"{r}/tables/table1.csv"] if networks else [],
+        "samples": [f"{r}/figures/{d}/{m}_samples.png" for d in datasets for m in networks],
+        "psnr": [f"{r}/figures/{d}/{m}_psnr.png" for d in datasets for m in networks],
+        "data_efficiency": [f"{r}/figures/data_efficiency.png"] if efficiency else [],
+        "diagnosis": diagnosis_paths(config),
+        "diagnosis_figures": [f"{r}/figures/diagnosis/{d}_{kind}.png" for d in diagnosed
+                              for kind in ("signatures", "ranking", "residuals", "ledger")],
+        "field": [f"{r}/field/{f}" for f in ("flux.png", "metrics.json", "flux.h5")] if "field" in config else [],
+    }
+
+
+def report_path(config: dict) -> str:
+    """results/<experiment>/report.html."""
+    return f"{results_dir(config)}/report.html"
+
+
+def all_targets(config: dict) -> list[str]:
+    """What `snakemake all` builds: the report, whose inputs (`report_inputs`) are everything else."""
+    return [report_path(config)]

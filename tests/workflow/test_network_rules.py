@@ -4,7 +4,7 @@ import pytest
 
 from helioflow.config import load_config
 from helioflow.errors import ConfigError
-from helioflow.workflow import all_targets, efficiency_metrics, models, parse_model, train_inputs, train_params
+from helioflow.workflow import efficiency_metrics, models, parse_model, report_inputs, train_inputs, train_params
 
 
 @pytest.fixture
@@ -33,12 +33,13 @@ def test_unknown_network_is_named(config):
         train_params(config, "sanity_check", "gan")
 
 
-def test_targets_include_metrics_table_and_data_efficiency(config):
+def test_report_inputs_include_evaluation_figures_table_and_data_efficiency(config):
     config["data_efficiency"] = {"networks": ["cgan"], "train_images": [25, 50]}
-    targets = all_targets(config)
-    assert "results/default/metrics/semi_sphere/cgan.json" in targets
-    assert "results/default/tables/table1.md" in targets
-    assert "results/default/figures/data_efficiency.png" in targets
+    inputs = report_inputs(config)
+    assert "results/default/figures/semi_sphere/cgan_samples.png" in inputs["samples"]
+    assert "results/default/figures/semi_sphere/cgan_psnr.png" in inputs["psnr"]
+    assert "results/default/tables/table1.md" in inputs["table"]
+    assert inputs["data_efficiency"] == ["results/default/figures/data_efficiency.png"]
     assert models(config) == ["nearest", "cgan", "cgan-n25", "cgan-n50"]
     assert efficiency_metrics(config) == [f"results/default/metrics/{d}/cgan-n{k}.json"
                                           for d in ("sanity_check", "semi_sphere") for k in (25, 50)]

@@ -14,10 +14,10 @@ import yaml
 from helioflow.config import validate_config
 from helioflow.errors import ConfigError
 from helioflow.workflow import (
-    all_targets,
     import_paint_inputs,
     import_paint_params,
     name_pattern,
+    report_inputs,
     paint_datasets,
     paint_heliostat_params,
     paint_heliostats,
@@ -71,7 +71,7 @@ def test_import_params_default_the_resolution_to_the_targets_and_inputs_list_the
     assert len(files["measurements"]) == 12 and all(Path(f).is_file() for f in files["measurements"])
     with pytest.raises(ConfigError, match="not imported from PAINT"):
         import_paint_params(config, "scan")
-    assert "results/tiny/paint/aa39_centroids.json" in all_targets(config)
+    assert report_inputs(config)["paint_centroids"] == ["results/tiny/paint/aa39_centroids.json"]
 
 
 def test_name_pattern_matches_exactly_the_names():

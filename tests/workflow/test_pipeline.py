@@ -66,6 +66,7 @@ def pipeline(tmp_path_factory):
 
 
 R = "results/tiny"
+REPORT = f"{R}/report.html"
 DATASETS = {"scan": "small", "sky": "small_grid"}
 
 
@@ -85,6 +86,22 @@ def test_all_builds_datasets_figures_logs_and_benchmarks(pipeline):
 
 
 @pytest.mark.slow
+def test_all_builds_the_self_contained_report_with_every_section(pipeline):
+    text = (pipeline / REPORT).read_text()
+    for heading in ("Datasets", "Table 1", "Sample grids", "PSNR against sun position",
+                    "Diagnosis: which effect is missing", "Error ledger", "Field flux maps", "Run times"):
+        assert f"<h2>{heading}</h2>" in text
+    assert text.count('src="data:image/png;base64,') == len(DATASETS)
+    assert not re.findall(r'(?:src|href)="(?!data:|#)', text)
+    assert "Not part of this experiment." in text  # the tiny config has no networks, diagnosis or field
+    for dataset, heliostat in DATASETS.items():
+        assert f"<td>{dataset}</td><td>{heliostat}</td>" in text
+    for rule in ("surfaces", "trace", "plot_dataset"):
+        assert f"<td>{rule}</td>" in text
+    assert (pipeline / f"{R}/benchmarks/report/report.tsv").is_file()
+
+
+@pytest.mark.slow
 def test_a_second_run_has_nothing_to_do(pipeline):
     proc = snakemake(pipeline, "-n", "all", "--configfile", "tiny_config.yaml")
     assert proc.returncode == 0 and "Nothing to be done" in proc.stdout + proc.stderr
@@ -96,11 +113,11 @@ def test_editing_one_dataset_reruns_only_its_trace_and_plot(pipeline):
     config = _tiny()
     config["datasets"]["sky"]["trace"]["rays"] = 5000
     assert _dry_run(pipeline, config, "edited_sky.yaml") == {f"{R}/datasets/sky.h5",
-                                                              f"{R}/figures/datasets/sky.png"}
+                                                              f"{R}/figures/datasets/sky.png", REPORT}
     config = _tiny()
     config["datasets"]["scan"]["sun"]["n"] = 7
     assert _dry_run(pipeline, config, "edited_scan.yaml") == {f"{R}/datasets/scan.h5",
-                                                               f"{R}/figures/datasets/scan.png"}
+                                                               f"{R}/figures/datasets/scan.png", REPORT}
 
 
 @pytest.mark.slow
@@ -108,7 +125,7 @@ def test_editing_a_heliostat_reruns_its_surfaces_and_its_datasets_only(pipeline)
     config = _tiny()
     config["heliostats"]["small_grid"]["deformation_mm"] = 0.3
     assert _dry_run(pipeline, config, "edited_heliostat.yaml") == {
-        f"{R}/surfaces/small_grid.h5", f"{R}/datasets/sky.h5", f"{R}/figures/datasets/sky.png"}
+        f"{R}/surfaces/small_grid.h5", f"{R}/datasets/sky.h5", f"{R}/figures/datasets/sky.png", REPORT}
 
 
 @pytest.mark.slow
@@ -116,7 +133,7 @@ def test_editing_shared_physics_reruns_every_trace_but_no_surfaces(pipeline):
     config = _tiny()
     config["world"]["effects"]["slope_error"]["sigma_mrad"] = 0.7
     assert _dry_run(pipeline, config, "edited_world.yaml") == {
-        f"{R}/datasets/{d}.h5" for d in DATASETS} | {f"{R}/figures/datasets/{d}.png" for d in DATASETS}
+        f"{R}/datasets/{d}.h5" for d in DATASETS} | {f"{R}/figures/datasets/{d}.png" for d in DATASETS} | {REPORT}
 
 
 def test_a_bad_config_stops_snakemake_with_a_clear_message(tmp_path):

@@ -12,6 +12,7 @@ from helioflow.errors import ConfigError
 from helioflow.workflow import (
     all_targets,
     dataset_heliostat,
+    report_inputs,
     surfaces_params,
     trace_params,
     world_effects,
@@ -119,15 +120,16 @@ def test_unknown_name_raises_config_error_listing_known_names(config, call, name
     assert name in str(exc.value) and known in str(exc.value)
 
 
-def test_all_targets_are_datasets_and_figures_under_results_experiment(config):
+def test_all_targets_are_the_report_whose_inputs_are_datasets_and_figures_under_results_experiment(config):
     config["networks"] = {}
-    assert all_targets(config) == [
-        "results/default/datasets/sanity_check.h5",
-        "results/default/datasets/semi_sphere.h5",
-        "results/default/figures/datasets/sanity_check.png",
-        "results/default/figures/datasets/semi_sphere.png",
-    ]
+    assert all_targets(config) == ["results/default/report.html"]
+    inputs = report_inputs(config)
+    assert inputs["datasets"] == ["results/default/datasets/sanity_check.h5",
+                                  "results/default/datasets/semi_sphere.h5"]
+    assert inputs["dataset_figures"] == ["results/default/figures/datasets/sanity_check.png",
+                                         "results/default/figures/datasets/semi_sphere.png"]
     config["experiment"] = "run-2"
     del config["datasets"]["semi_sphere"]
-    assert all_targets(config) == ["results/run-2/datasets/sanity_check.h5",
-                                   "results/run-2/figures/datasets/sanity_check.png"]
+    assert all_targets(config) == ["results/run-2/report.html"]
+    assert [f for files in report_inputs(config).values() for f in files] == [
+        "results/run-2/datasets/sanity_check.h5", "results/run-2/figures/datasets/sanity_check.png"]

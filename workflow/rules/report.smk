@@ -1,0 +1,23 @@
+# The experiment's report: the target of `rule all`. Its inputs are every final output of the
+# config (helioflow.workflow.report_inputs, by section); its run times come from the benchmarks.
+from helioflow.workflow import report_inputs, report_path
+
+
+rule report:
+    """Self-contained HTML report (figures inline, readable offline) of the whole experiment."""
+    input:
+        **report_inputs(config),
+    output:
+        html=report(report_path(config), caption="../report/report.rst", category="Report"),
+    params:
+        inputs=json.dumps(report_inputs(config)),
+        benchmarks=f"{RESULTS}/benchmarks",
+        experiment=config["experiment"],
+    log:
+        f"{RESULTS}/logs/report/report.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/report/report.tsv"
+    threads: 1
+    shell:
+        "helioflow report --inputs {params.inputs:q} --benchmarks {params.benchmarks}"
+        " --experiment {params.experiment:q} --output {output.html} > {log} 2>&1"
