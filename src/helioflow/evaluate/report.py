@@ -34,6 +34,7 @@ from .report_html import (
     esc,
     figure,
     figure_bytes,
+    fmt,
     markdown,
     nested_tables,
     page,
@@ -112,20 +113,27 @@ def _diagnosis(path: str) -> dict:
     return data
 
 
+def _diagnosis_terms(d: dict) -> str:
+    """The model the diagnosis started from, its error measure and its threshold."""
+    measure = d.get("error_measure") or {}
+    threshold = d.get("threshold")
+    return (f"<p>Model effects: <code>{esc(fmt(d.get('model_effects', {})))}</code>. Error measure: "
+            f"<strong>{esc(measure.get('name', '?'))}</strong>: {esc(measure.get('description', ''))}. "
+            f"A relative reduction below {_pct(threshold) if isinstance(threshold, float) else esc(threshold)} "
+            "counts as no reduction.</p>")
+
+
 def _diagnosis_section(paths: list[str], figures: list[str]) -> str:
     """Per dataset: verdict, error measure, ranking of the missing effects, signatures, figures."""
     named, parts = _by_name(figures), []
     for path in paths:
         d = _diagnosis(path)
-        name, measure = d["dataset"], d.get("error_measure") or {}
+        name = d["dataset"]
         ranking = [[i + 1, r.get("effect"), _fitted(r.get("fitted")), r.get("heldout_error_before"),
                     r.get("heldout_error_after"), _pct(r.get("relative_reduction")), r.get("identifiable")]
                    for i, r in enumerate(d["ranking"])]
         parts += [f"<h3>{esc(name)}</h3>", f'<p class="verdict">{esc(d.get("verdict", ""))}</p>',
-                  f"<p>Model effects: <code>{esc(d.get('model_effects', {}))}</code>. Error measure: "
-                  f"<strong>{esc(measure.get('name', '?'))}</strong> — {esc(measure.get('description', ''))}. "
-                  f"A relative reduction below {esc(d.get('threshold', '?'))} is not counted as meaningful.</p>",
-                  "<h4>Missing effects, best first</h4>",
+                  _diagnosis_terms(d), "<h4>Missing effects, best first</h4>",
                   table(["rank", "effect", "fitted parameters", "held-out error before", "after",
                          "relative reduction", "identifiable"], ranking)]
         if d.get("not_tested"):
@@ -213,8 +221,8 @@ def field_maps_figure(maps: list[tuple[str, dict[str, np.ndarray]]]) -> bytes:
             if column not in images:
                 ax.set_axis_off()
                 continue
-            scale = dict(cmap="inferno", vmin=0.0, vmax=vmax) if column in MAP_NAMES else dict(
-                cmap="RdBu_r", vmin=-limit, vmax=limit)
+            scale = ({"cmap": "inferno", "vmin": 0.0, "vmax": vmax} if column in MAP_NAMES
+                     else {"cmap": "RdBu_r", "vmin": -limit, "vmax": limit})
             fig.colorbar(ax.imshow(images[column], **scale), ax=ax, shrink=0.8, label="W/m²")
             ax.set_title(f"{point}: {column}", fontsize=9)
     buf = io.BytesIO()
@@ -280,8 +288,8 @@ def _run_times_section(benchmark_dir: str | os.PathLike | None) -> str:
     return ("<p>Wall time of each job from snakemake's benchmark files (mean over repeats); jobs that ran "
             "in parallel overlap, so the total is the summed job time, not the elapsed time.</p>"
             + table(["rule", "wildcards", "s", "h:m:s", "max RSS (MB)"],
-                    [[r["rule"], r["wildcards"], round(r["s"], 2), _hms(r["s"]), r["max_rss_mb"]] for r in rows],
-                    total=["total", f"{len(rows)} jobs", round(total, 2), _hms(total), None]))
+                    [[r["rule"], r["wildcards"], f"{r['s']:.2f}", _hms(r["s"]), r["max_rss_mb"]] for r in rows],
+                    total=["total", f"{len(rows)} jobs", f"{total:.2f}", _hms(total), None]))
 
 
 def build_report(inputs: dict[str, list[str]], benchmark_dir: str | os.PathLike | None, experiment: str) -> str:

@@ -102,11 +102,15 @@ def fmt(value) -> str:
 
 
 def _is_number(value) -> bool:
+    """A number, or text that reads as one (pre-formatted cells such as '2.50' or '80 %')."""
+    if isinstance(value, str):
+        return re.fullmatch(r"-?\d[\d.,]*( %)?", value) is not None
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def table(header: list[str], rows: list[list], total: list | None = None) -> str:
-    """An HTML table; numbers right-aligned; `total` is an emphasised last row."""
+    """An HTML table; numbers (and text that reads as one) right-aligned; `total` is an
+    emphasised last row."""
     def row(cells, cls=""):
         tds = "".join(f'<td class="num">{esc(fmt(c))}</td>' if _is_number(c) else f"<td>{esc(fmt(c))}</td>"
                       for c in cells)
