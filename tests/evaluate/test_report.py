@@ -128,13 +128,20 @@ def test_report_has_every_section_with_figures_inline_and_no_links_to_files(file
     assert '<td class="num">100.0</td>' in _section(text, "Table 1")
     diagnosis = _section(text, "Diagnosis: which effect is missing")
     assert DIAGNOSIS["verdict"] in diagnosis and "axis_offset_mrad = 0.52" in diagnosis and "80 %" in diagnosis
-    assert "below 10 %" in diagnosis and "needs the field geometry" in diagnosis and "rms_centroid_offset_mrad" in diagnosis
+    assert "counts from: relative reduction 10 %" in diagnosis and "needs the field geometry" in diagnosis and "rms_centroid_offset_mrad" in diagnosis
     assert "abcdef012345" in _section(text, "Error ledger")
     field = _section(text, "Field flux maps")
     assert "<td>noon / hybrid</td>" in field and "31.2" in field and "<td>noon / hybrid / per_heliostat</td>" in field
     runs = _section(text, "Run times")
     assert "<td>train</td><td>scan/nearest</td><td class=\"num\">2.00</td>" in runs  # mean of the repeats
     assert "<td>total</td><td>2 jobs</td><td class=\"num\">4.50</td>" in runs
+
+
+def test_a_threshold_of_several_parts_is_listed(tmp_path):
+    path = tmp_path / "scan.json"
+    path.write_text(json.dumps({**DIAGNOSIS, "threshold": {"relative_reduction": 0.5, "absolute_reduction": 0.01}}))
+    text = build_report({"diagnosis": [str(path)]}, None, "t")
+    assert "counts from: relative_reduction = 0.5, absolute_reduction = 0.01." in text
 
 
 def test_sections_the_experiment_leaves_out_say_so(files):

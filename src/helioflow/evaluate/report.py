@@ -117,10 +117,13 @@ def _diagnosis_terms(d: dict) -> str:
     """The model the diagnosis started from, its error measure and its threshold."""
     measure = d.get("error_measure") or {}
     threshold = d.get("threshold")
+    if isinstance(threshold, dict):
+        threshold = _fitted(threshold)
+    elif isinstance(threshold, float):
+        threshold = f"relative reduction {_pct(threshold)}"
     return (f"<p>Model effects: <code>{esc(fmt(d.get('model_effects', {})))}</code>. Error measure: "
             f"<strong>{esc(measure.get('name', '?'))}</strong>: {esc(measure.get('description', ''))}. "
-            f"A relative reduction below {_pct(threshold) if isinstance(threshold, float) else esc(threshold)} "
-            "counts as no reduction.</p>")
+            f"A reduction counts from: {esc(threshold)}.</p>")
 
 
 def _diagnosis_section(paths: list[str], figures: list[str]) -> str:
