@@ -137,6 +137,18 @@ def test_report_has_every_section_with_figures_inline_and_no_links_to_files(file
     assert "<td>total</td><td>2 jobs</td><td class=\"num\">4.50</td>" in runs
 
 
+def test_paint_centroid_checks_are_tabled_in_the_datasets_section(files, tmp_path):
+    inputs, _ = files
+    path = tmp_path / "aa39_centroids.json"
+    row = {"id": "m1", "target": "multi_focus_tower", "azimuth_deg": -12.0, "elevation_deg": 35.0,
+           "image_right_mrad": 0.4, "image_up_mrad": -1.25, "image_mrad": 1.31, "utis_mrad": 0.9,
+           "spot_angle_deg": {"ideal": 12.0, "measured": 14.5}}
+    path.write_text(json.dumps({"units": {"offsets": "mrad"}, "images": [row]}))
+    text = _section(build_report({**inputs, "paint_centroids": [str(path)]}, None, "t"), "Datasets")
+    assert "<h3>PAINT centroid check: aa39</h3>" in text
+    assert "<td>m1</td><td>multi_focus_tower</td>" in text and "-1.25" in text and "14.5" in text
+
+
 def test_a_threshold_of_several_parts_is_listed(tmp_path):
     path = tmp_path / "scan.json"
     path.write_text(json.dumps({**DIAGNOSIS, "threshold": {"relative_reduction": 0.5, "absolute_reduction": 0.01}}))
@@ -160,6 +172,9 @@ def test_bad_inputs_raise_one_clear_error_naming_the_file(tmp_path):
     (tmp_path / "not.png").write_text("hello")
     with pytest.raises(DataError, match="not.png: not a PNG image"):
         build_report({"samples": [str(tmp_path / "not.png")]}, None, "t")
+    (tmp_path / "c.json").write_text(json.dumps({"units": {}}))
+    with pytest.raises(DataError, match="c.json: not a PAINT centroid check"):
+        build_report({"paint_centroids": [str(tmp_path / "c.json")]}, None, "t")
     (tmp_path / "d.json").write_text(json.dumps({"dataset": "scan"}))
     with pytest.raises(DataError, match="d.json: not a diagnosis JSON"):
         build_report({"diagnosis": [str(tmp_path / "d.json")]}, None, "t")

@@ -67,11 +67,26 @@ def _datasets_section(datasets: list[str], figures: list[str], centroids: list[s
     parts = [table(["dataset", "heliostat", "source", "images", *SPLITS, "sun azimuth (deg)",
                     "sun elevation (deg)", "image size"], rows)]
     parts += [figure(p, f"dataset {Path(p).stem}: sample images") for p in figures]
-    for path in centroids:
-        parts.append(f"<h3>PAINT centroid check: {esc(Path(path).stem.removesuffix('_centroids'))}</h3>"
-                     "<p>Measured minus ideal spot centroid per image (mrad as seen from the heliostat).</p>"
-                     + nested_tables(read_json(path)))
+    parts += [_paint_centroids(p) for p in centroids]
     return "\n".join(parts)
+
+
+def _paint_centroids(path: str) -> str:
+    """Per PAINT image: measured and UTIS centroid offsets from the ideal trace, spot angles."""
+    data = read_json(path)
+    images = data.get("images") if isinstance(data, dict) else None
+    if not isinstance(images, list):
+        raise DataError(f"{path}: not a PAINT centroid check (written by `paint-centroids`): no `images` list")
+    rows = [[r.get("id"), r.get("target"), r.get("azimuth_deg"), r.get("elevation_deg"), r.get("image_right_mrad"),
+             r.get("image_up_mrad"), r.get("image_mrad"), r.get("utis_mrad"),
+             (r.get("spot_angle_deg") or {}).get("ideal"), (r.get("spot_angle_deg") or {}).get("measured")]
+            for r in images]
+    return (f"<h3>PAINT centroid check: {esc(Path(path).stem.removesuffix('_centroids'))}</h3>"
+            "<p>Spot centroid of each measured image and of PAINT's UTIS estimate minus that of the ideal "
+            "heliostat's trace, in mrad as seen from the heliostat; spot orientation in degrees.</p>"
+            + table(["id", "target", "sun azimuth (deg)", "sun elevation (deg)", "right (mrad)", "up (mrad)",
+                     "offset (mrad)", "UTIS offset (mrad)", "spot angle ideal (deg)", "spot angle measured (deg)"],
+                    rows))
 
 
 def _table1_section(paths: list[str]) -> str:
@@ -306,7 +321,7 @@ def build_report(inputs: dict[str, list[str]], benchmark_dir: str | os.PathLike 
         return render() if files else ABSENT
 
     sections = [
-        ("datasets", "Datasets", section(get["datasets"] + get["dataset_figures"], lambda: _datasets_section(
+        ("datasets", "Datasets", section(get["datasets"] + get["dataset_figures"] + get["paint_centroids"], lambda: _datasets_section(
             get["datasets"], get["dataset_figures"], get["paint_centroids"]))),
         ("table1", "Table 1", section(get["table"], lambda: _table1_section(get["table"]))),
         ("samples", "Sample grids", section(get["samples"], lambda: _model_figures(get["samples"], "_samples"))),
