@@ -146,7 +146,7 @@ def test_paint_centroid_checks_are_tabled_in_the_datasets_section(files, tmp_pat
     path.write_text(json.dumps({"units": {"offsets": "mrad"}, "images": [row]}))
     text = _section(build_report({**inputs, "paint_centroids": [str(path)]}, None, "t"), "Datasets")
     assert "<h3>PAINT centroid check: aa39</h3>" in text
-    assert "<td>m1</td><td>multi_focus_tower</td>" in text and "-1.25" in text and "14.5" in text
+    assert "<td>m1</td><td>multi_focus_tower</td>" in text and ">-1.25<" in text and ">14.5<" in text and ">1.31<" in text
 
 
 def test_a_threshold_of_several_parts_is_listed(tmp_path):

@@ -71,15 +71,21 @@ def _datasets_section(datasets: list[str], figures: list[str], centroids: list[s
     return "\n".join(parts)
 
 
+def _fixed(value, digits: int):
+    """A number as text with `digits` decimals (a column reads evenly); anything else as it is."""
+    return f"{value:.{digits}f}" if isinstance(value, (int, float)) and not isinstance(value, bool) else value
+
+
 def _paint_centroids(path: str) -> str:
     """Per PAINT image: measured and UTIS centroid offsets from the ideal trace, spot angles."""
     data = read_json(path)
     images = data.get("images") if isinstance(data, dict) else None
     if not isinstance(images, list):
         raise DataError(f"{path}: not a PAINT centroid check (written by `paint-centroids`): no `images` list")
-    rows = [[r.get("id"), r.get("target"), r.get("azimuth_deg"), r.get("elevation_deg"), r.get("image_right_mrad"),
-             r.get("image_up_mrad"), r.get("image_mrad"), r.get("utis_mrad"),
-             (r.get("spot_angle_deg") or {}).get("ideal"), (r.get("spot_angle_deg") or {}).get("measured")]
+    rows = [[r.get("id"), r.get("target"),
+             *(_fixed(r.get(k), 1) for k in ("azimuth_deg", "elevation_deg")),
+             *(_fixed(r.get(k), 2) for k in ("image_right_mrad", "image_up_mrad", "image_mrad", "utis_mrad")),
+             *(_fixed((r.get("spot_angle_deg") or {}).get(k), 1) for k in ("ideal", "measured"))]
             for r in images]
     return (f"<h3>PAINT centroid check: {esc(Path(path).stem.removesuffix('_centroids'))}</h3>"
             "<p>Spot centroid of each measured image and of PAINT's UTIS estimate minus that of the ideal "
@@ -306,8 +312,9 @@ def _run_times_section(benchmark_dir: str | os.PathLike | None) -> str:
     return ("<p>Wall time of each job from snakemake's benchmark files (mean over repeats); jobs that ran "
             "in parallel overlap, so the total is the summed job time, not the elapsed time.</p>"
             + table(["rule", "wildcards", "s", "h:m:s", "max RSS (MB)"],
-                    [[r["rule"], r["wildcards"], f"{r['s']:.2f}", _hms(r["s"]), r["max_rss_mb"]] for r in rows],
-                    total=["total", f"{len(rows)} jobs", f"{total:.2f}", _hms(total), None]))
+                    [[r["rule"], r["wildcards"], _fixed(r["s"], 2), _hms(r["s"]), _fixed(r["max_rss_mb"], 1)]
+                     for r in rows],
+                    total=["total", f"{len(rows)} jobs", _fixed(total, 2), _hms(total), None]))
 
 
 def build_report(inputs: dict[str, list[str]], benchmark_dir: str | os.PathLike | None, experiment: str) -> str:
