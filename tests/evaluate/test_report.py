@@ -55,7 +55,7 @@ DIAGNOSIS = {
         {"effect": "tracking", "fitted": {"axis_offset_mrad": 0.52}, "heldout_error_before": 0.4,
          "heldout_error_after": 0.08, "relative_reduction": 0.8, "identifiable": True},
         {"effect": "reflectivity", "fitted": {"value": 0.93}, "heldout_error_before": 0.4,
-         "heldout_error_after": 0.4, "relative_reduction": 0.0, "identifiable": False},
+         "heldout_error_after": 0.4, "relative_reduction": -0.001, "identifiable": False},
     ],
     "not_tested": [{"effect": "blocking_shading", "reason": "needs the field geometry"}],
     "signatures": {"rms_centroid_offset_mrad": 0.71, "energy_ratio": 0.99},
@@ -127,7 +127,7 @@ def test_report_has_every_section_with_figures_inline_and_no_links_to_files(file
     assert "<td>scan</td><td>small</td>" in text and "-20.0 … 30.0" in text  # dataset table
     assert '<td class="num">100.0</td>' in _section(text, "Table 1")
     diagnosis = _section(text, "Diagnosis: which effect is missing")
-    assert DIAGNOSIS["verdict"] in diagnosis and "axis_offset_mrad = 0.52" in diagnosis and "80 %" in diagnosis
+    assert DIAGNOSIS["verdict"] in diagnosis and "axis_offset_mrad = 0.52" in diagnosis and "80 %" in diagnosis and "-0 %" not in diagnosis
     assert "counts from: relative reduction 10 %" in diagnosis and "needs the field geometry" in diagnosis and "rms_centroid_offset_mrad" in diagnosis
     assert "abcdef012345" in _section(text, "Error ledger")
     field = _section(text, "Field flux maps")
@@ -202,6 +202,9 @@ def test_nested_numbers_become_tables_grouped_by_columns():
     html = nested_tables({"a": {"x": 1, "y": 2.5}, "b": {"x": 3, "y": None}, "units": "mrad"})
     assert html.count("<table>") == 2
     assert "<td>a</td><td class=\"num\">1</td><td class=\"num\">2.5</td>" in html and "<td>–</td>" in html
+    lists = nested_tables({"per_image": {"psnr": [float(i) for i in range(20)], "split": ["train"] * 15 + ["extra"] * 5,
+                                         "few": [1, 2]}})
+    assert "20 values, 0 … 19" in lists and "20 values: train 15, extra 5" in lists and "[1, 2]" in lists
     wide = nested_tables({"per_heliostat": {f"h{i}": float(i) for i in range(20)}})
     assert wide.count("<tr>") == 21  # transposed: header + one row per heliostat
 

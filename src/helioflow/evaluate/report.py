@@ -123,7 +123,7 @@ def _fitted(params: dict) -> str:
 
 
 def _pct(value) -> str:
-    return "–" if value is None else f"{100 * value:.0f} %"
+    return "–" if value is None else f"{round(100 * value):d} %"
 
 
 def _diagnosis(path: str) -> dict:

@@ -12,12 +12,14 @@ import html
 import json
 import os
 import re
+from collections import Counter
 from pathlib import Path
 
 from ..errors import DataError
 
 DASH = "–"
 MAX_ROWS = 40  # rows shown of one generic table; the file holds all
+MAX_LIST = 8  # a longer list of numbers in a cell is shown as its count and range
 MAX_COLUMNS = 12  # a generic table wider than this (and longer than wide) is shown transposed
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -87,7 +89,10 @@ def download(path: str | os.PathLike, mime: str = "text/csv") -> str:
 
 
 def fmt(value) -> str:
-    """A table cell: floats to 4 significant digits, None as a dash, lists and dicts as JSON."""
+    """A table cell: floats to 4 significant digits, None as a dash, a list of more than
+    MAX_LIST items by its count and range (numbers) or counts (text), other lists and dicts as JSON."""
+    if isinstance(value, list) and len(value) > MAX_LIST:
+        return _summary(value)
     if value is None:
         return DASH
     if isinstance(value, bool):
@@ -99,6 +104,17 @@ def fmt(value) -> str:
     if isinstance(value, (list, dict)):
         return json.dumps(value, separators=(", ", ": "))
     return str(value)
+
+
+def _summary(values: list) -> str:
+    """'200 values, 0.1 … 4.3' for numbers, '200 values: train 150, interpolation 50' for text."""
+    numbers = [v for v in values if _is_number(v)]
+    if len(numbers) == len(values):
+        return f"{len(values)} values, {fmt(float(min(numbers)))} … {fmt(float(max(numbers)))}"
+    counts = Counter(map(str, values))
+    if len(counts) > MAX_LIST:
+        return f"{len(values)} values"
+    return f"{len(values)} values: " + ", ".join(f"{k} {n}" for k, n in counts.items())
 
 
 def _is_number(value) -> bool:
