@@ -16,12 +16,14 @@ from helioflow.cli import main
 from helioflow.config import load_config
 from helioflow.data.hdf5 import CalibrationDataset, write_dataset
 from helioflow.errors import DataError
-from helioflow.evaluate.report import build_report, field_maps, run_times, write_report
+from helioflow.evaluate.report import build_report, run_times, write_report
+from helioflow.evaluate.report_field import field_maps
 from helioflow.evaluate.report_html import markdown, nested_tables
 from helioflow.workflow import all_targets, diagnosis_paths, report_inputs
 
 TINY = Path(__file__).resolve().parents[1] / "workflow" / "tiny_config.yaml"
-HEADINGS = ("Datasets", "Table 1", "Sample grids", "PSNR against sun position", "Diagnosis: which effect is missing",
+HEADINGS = ("Datasets", "Table 1", "Sample grids", "PSNR against sun position",
+            "Diagnosis: which effect is missing",
             "Error ledger", "Field flux maps", "Run times")
 ABSENT = "Not part of this experiment."
 
@@ -60,13 +62,16 @@ DIAGNOSIS = {
     "not_tested": [{"effect": "blocking_shading", "reason": "needs the field geometry"}],
     "signatures": {"rms_centroid_offset_mrad": 0.71, "energy_ratio": 0.99},
     "verdict": "The model lacks a tracking error: fitting tracking cuts held-out error by 80%.",
-    "ledger": [{"revision": 1, "model_hash": "abcdef0123456789", "model_effects": {"sunshape": {"kind": "pillbox"}},
+    "ledger": [{"revision": 1, "model_hash": "abcdef0123456789",
+                "model_effects": {"sunshape": {"kind": "pillbox"}},
                 "heldout_error": 0.4},
                {"revision": 2, "model_hash": "9876543210fedcba", "model_effects": {"tracking": "fit"},
                 "heldout_error": 0.08}],
 }
-FIELD_METRICS = {"noon": {"ideal": {"flux_accuracy": 0.81, "psnr": 24.5, "peak_flux_error": 0.12, "intercept": 0.9},
-                          "hybrid": {"flux_accuracy": 0.93, "psnr": 31.2, "peak_flux_error": 0.03, "intercept": 0.91,
+FIELD_METRICS = {"noon": {"ideal": {"flux_accuracy": 0.81, "psnr": 24.5, "peak_flux_error": 0.12,
+                                    "intercept": 0.9},
+                          "hybrid": {"flux_accuracy": 0.93, "psnr": 31.2, "peak_flux_error": 0.03,
+                                     "intercept": 0.91,
                                      "per_heliostat": {"h1": 0.02, "h2": 0.05}}}}
 
 
@@ -122,16 +127,20 @@ def test_report_has_every_section_with_figures_inline_and_no_links_to_files(file
         assert f"<h2>{heading}</h2>" in text and ABSENT not in _section(text, heading)
     pngs = [f for files in inputs.values() for f in files if f.endswith(".png")]
     assert text.count('src="data:image/png;base64,') == len(pngs) + 1  # + the maps drawn from flux.h5
-    assert not re.findall(r'(?:src|href)="(?!data:|#)', text) and "<link" not in text and "<script" not in text
+    assert not re.findall(r'(?:src|href)="(?!data:|#)', text)
+    assert "<link" not in text and "<script" not in text
     assert 'download="table1.csv" href="data:text/csv;base64,' in text
     assert "<td>scan</td><td>small</td>" in text and "-20.0 … 30.0" in text  # dataset table
     assert '<td class="num">100.0</td>' in _section(text, "Table 1")
     diagnosis = _section(text, "Diagnosis: which effect is missing")
-    assert DIAGNOSIS["verdict"] in diagnosis and "axis_offset_mrad = 0.52" in diagnosis and "80 %" in diagnosis and "-0 %" not in diagnosis
-    assert "counts from: relative reduction 10 %" in diagnosis and "needs the field geometry" in diagnosis and "rms_centroid_offset_mrad" in diagnosis
+    assert DIAGNOSIS["verdict"] in diagnosis and "axis_offset_mrad = 0.52" in diagnosis
+    assert "80 %" in diagnosis and "-0 %" not in diagnosis  # relative reductions
+    assert "counts from: relative reduction 10 %" in diagnosis and "needs the field geometry" in diagnosis
+    assert "rms_centroid_offset_mrad" in diagnosis
     assert "abcdef012345" in _section(text, "Error ledger")
     field = _section(text, "Field flux maps")
-    assert "<td>noon / hybrid</td>" in field and "31.2" in field and "<td>noon / hybrid / per_heliostat</td>" in field
+    assert "<td>noon / hybrid</td>" in field and "31.2" in field
+    assert "<td>noon / hybrid / per_heliostat</td>" in field
     runs = _section(text, "Run times")
     assert "<td>train</td><td>scan/nearest</td><td class=\"num\">2.00</td>" in runs  # mean of the repeats
     assert "<td>total</td><td>2 jobs</td><td class=\"num\">4.50</td>" in runs
@@ -146,12 +155,14 @@ def test_paint_centroid_checks_are_tabled_in_the_datasets_section(files, tmp_pat
     path.write_text(json.dumps({"units": {"offsets": "mrad"}, "images": [row]}))
     text = _section(build_report({**inputs, "paint_centroids": [str(path)]}, None, "t"), "Datasets")
     assert "<h3>PAINT centroid check: aa39</h3>" in text
-    assert "<td>m1</td><td>multi_focus_tower</td>" in text and ">-1.25<" in text and ">14.5<" in text and ">1.31<" in text
+    assert "<td>m1</td><td>multi_focus_tower</td>" in text
+    assert ">-1.25<" in text and ">14.5<" in text and ">1.31<" in text
 
 
 def test_a_threshold_of_several_parts_is_listed(tmp_path):
     path = tmp_path / "scan.json"
-    path.write_text(json.dumps({**DIAGNOSIS, "threshold": {"relative_reduction": 0.5, "absolute_reduction": 0.01}}))
+    threshold = {"relative_reduction": 0.5, "absolute_reduction": 0.01}
+    path.write_text(json.dumps({**DIAGNOSIS, "threshold": threshold}))
     text = build_report({"diagnosis": [str(path)]}, None, "t")
     assert "counts from: relative_reduction = 0.5, absolute_reduction = 0.01." in text
 
@@ -202,7 +213,8 @@ def test_nested_numbers_become_tables_grouped_by_columns():
     html = nested_tables({"a": {"x": 1, "y": 2.5}, "b": {"x": 3, "y": None}, "units": "mrad"})
     assert html.count("<table>") == 2
     assert "<td>a</td><td class=\"num\">1</td><td class=\"num\">2.5</td>" in html and "<td>–</td>" in html
-    lists = nested_tables({"per_image": {"psnr": [float(i) for i in range(20)], "split": ["train"] * 15 + ["extra"] * 5,
+    lists = nested_tables({"per_image": {"psnr": [float(i) for i in range(20)],
+                                         "split": ["train"] * 15 + ["extra"] * 5,
                                          "few": [1, 2]}})
     assert "20 values, 0 … 19" in lists and "20 values: train 15, extra 5" in lists and "[1, 2]" in lists
     wide = nested_tables({"per_heliostat": {f"h{i}": float(i) for i in range(20)}})
@@ -237,8 +249,9 @@ def test_report_inputs_of_the_tiny_config_list_the_expected_files():
     config.update(networks={"nearest": {}}, diagnosis={}, field={})
     inputs = report_inputs(config)
     assert inputs["table"] == [f"{r}/tables/table1.md", f"{r}/tables/table1.csv"]
-    assert inputs["samples"] == [f"{r}/figures/scan/nearest_samples.png", f"{r}/figures/sky/nearest_samples.png"]
-    assert inputs["diagnosis"] == diagnosis_paths(config) == [f"{r}/diagnosis/scan.json", f"{r}/diagnosis/sky.json"]
+    assert inputs["samples"] == [f"{r}/figures/{d}/nearest_samples.png" for d in ("scan", "sky")]
+    assert inputs["diagnosis"] == diagnosis_paths(config)
+    assert diagnosis_paths(config) == [f"{r}/diagnosis/{d}.json" for d in ("scan", "sky")]
     assert f"{r}/figures/diagnosis/sky_ledger.png" in inputs["diagnosis_figures"]
     assert len(inputs["diagnosis_figures"]) == 8
     assert inputs["field"] == [f"{r}/field/flux.png", f"{r}/field/metrics.json", f"{r}/field/flux.h5"]

@@ -167,6 +167,16 @@ def markdown(text: str) -> str:
     return "\n".join(parts)
 
 
+def fixed(value, digits: int):
+    """A number as text with `digits` decimals (a column reads evenly); anything else as it is."""
+    return f"{value:.{digits}f}" if _is_number(value) and not isinstance(value, str) else value
+
+
+def figures_by_name(paths: list[str]) -> dict[str, str]:
+    """{file name: path} of figure files, to pick a section's figures by name."""
+    return {Path(p).name: str(p) for p in paths}
+
+
 def _is_scalar(value) -> bool:
     return value is None or isinstance(value, (str, int, float, bool)) or (
         isinstance(value, list) and all(isinstance(v, (str, int, float, bool)) or v is None for v in value))
@@ -204,7 +214,7 @@ def nested_tables(data) -> str:
         if len(columns) > MAX_COLUMNS and len(columns) > len(members):
             header = ["", *(label for label, _ in members)]
             body = [[c, *(v[c] for _, v in members)] for c in columns]
-        note = f"<p>first {MAX_ROWS} of {len(body)} rows (all in the file)</p>" if len(body) > MAX_ROWS else ""
+        note = f"<p>first {MAX_ROWS} of {len(body)} rows (all in the file)</p>" * (len(body) > MAX_ROWS)
         parts.append(table(header, body[:MAX_ROWS]) + note)
     return "\n".join(parts)
 
@@ -214,6 +224,6 @@ def page(title: str, sections: list[tuple[str, str, str]]) -> str:
     nav = "".join(f'<li><a href="#{sid}">{esc(heading)}</a></li>' for sid, heading, _ in sections)
     body = "\n".join(f'<section id="{sid}">\n<h2>{esc(heading)}</h2>\n{content}\n</section>'
                      for sid, heading, content in sections)
-    return (f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n<title>{esc(title)}</title>\n'
-            f"<style>{STYLE}</style>\n</head>\n<body>\n<h1>{esc(title)}</h1>\n"
+    return (f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+            f"<title>{esc(title)}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n<h1>{esc(title)}</h1>\n"
             f"<nav><ol>{nav}</ol></nav>\n{body}\n</body>\n</html>\n")
