@@ -228,7 +228,7 @@ def report_inputs(config: dict) -> dict[str, list[str]]:
         "diagnosis": diagnosis_paths(config),
         "diagnosis_figures": [f"{r}/figures/diagnosis/{d}_{kind}.png" for d in diagnosed
                               for kind in ("signatures", "ranking", "residuals", "ledger")],
-        "field": [f"{r}/field/{f}" for f in ("flux.png", "metrics.json", "flux.h5")] if "field" in config else [],
+        "field": [f"{r}/field/flux.png", f"{r}/field/metrics.json"] if "field" in config else [],
     }
 
 

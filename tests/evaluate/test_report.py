@@ -8,7 +8,6 @@ import struct
 import zlib
 from pathlib import Path
 
-import h5py
 import numpy as np
 import pytest
 
@@ -17,7 +16,6 @@ from helioflow.config import load_config
 from helioflow.data.hdf5 import CalibrationDataset, write_dataset
 from helioflow.errors import DataError
 from helioflow.evaluate.report import build_report, run_times, write_report
-from helioflow.evaluate.report_field import field_maps
 from helioflow.evaluate.report_html import markdown, nested_tables
 from helioflow.workflow import all_targets, diagnosis_paths, report_inputs
 
@@ -93,9 +91,6 @@ def files(tmp_path):
     (r / "diagnosis/scan.json").write_text(json.dumps(DIAGNOSIS))
     (r / "field").mkdir()
     (r / "field/metrics.json").write_text(json.dumps(FIELD_METRICS))
-    with h5py.File(r / "field/flux.h5", "w") as f:
-        for name, value in (("truth", 1.0), ("ideal", 0.5), ("hybrid", 0.9)):
-            f[f"noon/{name}"] = np.full((4, 5), value)
     _benchmark(r / "benchmarks/trace/scan.tsv", 2.5)
     _benchmark(r / "benchmarks/train/scan/nearest.tsv", 1.0, 3.0)
     inputs = {
@@ -108,7 +103,7 @@ def files(tmp_path):
         "diagnosis": [str(r / "diagnosis/scan.json")],
         "diagnosis_figures": [_png(r / f"figures/diagnosis/scan_{k}.png")
                               for k in ("signatures", "ranking", "residuals", "ledger")],
-        "field": [_png(r / "field/flux.png"), str(r / "field/metrics.json"), str(r / "field/flux.h5")],
+        "field": [_png(r / "field/flux.png"), str(r / "field/metrics.json")],
     }
     return inputs, r / "benchmarks"
 
@@ -126,7 +121,7 @@ def test_report_has_every_section_with_figures_inline_and_no_links_to_files(file
     for heading in HEADINGS:
         assert f"<h2>{heading}</h2>" in text and ABSENT not in _section(text, heading)
     pngs = [f for files in inputs.values() for f in files if f.endswith(".png")]
-    assert text.count('src="data:image/png;base64,') == len(pngs) + 1  # + the maps drawn from flux.h5
+    assert text.count('src="data:image/png;base64,') == len(pngs)
     assert not re.findall(r'(?:src|href)="(?!data:|#)', text)
     assert "<link" not in text and "<script" not in text
     assert 'download="table1.csv" href="data:text/csv;base64,' in text
@@ -197,26 +192,14 @@ def test_bad_inputs_raise_one_clear_error_naming_the_file(tmp_path):
         run_times(tmp_path / "b")
 
 
-def test_field_maps_read_per_point_groups_and_stacked_maps_with_names(tmp_path):
-    path = tmp_path / "stacked.h5"
-    with h5py.File(path, "w") as f:
-        f["maps/truth"] = np.zeros((2, 3, 3))
-        f["maps/hybrid"] = np.ones((2, 3, 3))
-        f["maps/points"] = np.array(["noon", "evening"], dtype=h5py.string_dtype())
-        f["receiver_m"] = np.zeros((3, 3))  # neither a map name nor stacked: ignored
-    maps = field_maps(path)
-    assert [p for p, _ in maps] == ["noon", "evening"] and sorted(maps[1][1]) == ["hybrid", "truth"]
-    assert maps[1][1]["hybrid"].shape == (3, 3)
-
-
 def test_nested_numbers_become_tables_grouped_by_columns():
     html = nested_tables({"a": {"x": 1, "y": 2.5}, "b": {"x": 3, "y": None}, "units": "mrad"})
     assert html.count("<table>") == 2
     assert "<td>a</td><td class=\"num\">1</td><td class=\"num\">2.5</td>" in html and "<td>–</td>" in html
     lists = nested_tables({"per_image": {"psnr": [float(i) for i in range(20)],
                                          "split": ["train"] * 15 + ["extra"] * 5,
-                                         "few": [1, 2]}})
-    assert "20 values, 0 … 19" in lists and "20 values: train 15, extra 5" in lists and "[1, 2]" in lists
+                                         "few": [1, 27.97843]}})
+    assert "20 values, 0 … 19" in lists and "20 values: train 15, extra 5" in lists and "[1, 27.98]" in lists
     wide = nested_tables({"per_heliostat": {f"h{i}": float(i) for i in range(20)}})
     assert wide.count("<tr>") == 21  # transposed: header + one row per heliostat
 
@@ -254,4 +237,4 @@ def test_report_inputs_of_the_tiny_config_list_the_expected_files():
     assert diagnosis_paths(config) == [f"{r}/diagnosis/{d}.json" for d in ("scan", "sky")]
     assert f"{r}/figures/diagnosis/sky_ledger.png" in inputs["diagnosis_figures"]
     assert len(inputs["diagnosis_figures"]) == 8
-    assert inputs["field"] == [f"{r}/field/flux.png", f"{r}/field/metrics.json", f"{r}/field/flux.h5"]
+    assert inputs["field"] == [f"{r}/field/flux.png", f"{r}/field/metrics.json"]

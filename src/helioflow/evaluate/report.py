@@ -11,7 +11,8 @@ benchmark files, and writes results/<experiment>/report.html with the sections
     PSNR / sun position figures/<d>/<model>_psnr.png (+ figures/data_efficiency.png)
     Diagnosis           diagnosis/<d>.json: verdict, ranking, signatures; figures/diagnosis/<d>_*.png
     Error ledger        the `ledger` of each diagnosis JSON and figures/diagnosis/<d>_ledger.png
-    Field flux maps     field/flux.png, field/flux.h5 (maps and differences to truth), field/metrics.json
+    Field flux maps     field/flux.png (truth, ideal, hybrid maps beside their differences to truth)
+                        and field/metrics.json as tables
     Run times           benchmarks/<rule>/<wildcards>.tsv (snakemake's benchmark files)
 
 A section whose files are all absent from the inputs says "Not part of this experiment".
@@ -30,8 +31,18 @@ import numpy as np
 from ..data.hdf5 import SPLITS, read_dataset
 from ..errors import DataError
 from .report_diagnosis import diagnosis_section, ledger_section
-from .report_field import field_section
-from .report_html import download, esc, figure, fixed, markdown, page, read_bytes, read_json, table
+from .report_html import (
+    download,
+    esc,
+    figure,
+    fixed,
+    markdown,
+    nested_tables,
+    page,
+    read_bytes,
+    read_json,
+    table,
+)
 
 SECTIONS = ("datasets", "dataset_figures", "paint_centroids", "table", "samples", "psnr", "data_efficiency",
             "diagnosis", "diagnosis_figures", "field")
@@ -99,6 +110,18 @@ def _psnr_section(files: dict[str, list[str]]) -> str:
     return "\n".join(parts)
 
 
+def _field_section(files: dict[str, list[str]]) -> str:
+    """The field figure (compose_field draws the maps beside their differences to truth) and the
+    metrics against truth, any nesting of them, as tables."""
+    parts = []
+    for path in files["field"]:
+        if Path(path).suffix == ".png":
+            parts.append(figure(path, "field flux maps on the receiver per sun design point"))
+        else:
+            parts += ["<h3>Metrics against truth</h3>", nested_tables(read_json(path))]
+    return "\n".join(parts)
+
+
 # (anchor, heading, the input sections it shows, renderer of the files by section)
 LAYOUT = (
     ("datasets", "Datasets", ("datasets", "dataset_figures", "paint_centroids"), _datasets_section),
@@ -107,7 +130,7 @@ LAYOUT = (
     ("psnr", "PSNR against sun position", ("psnr", "data_efficiency"), _psnr_section),
     ("diagnosis", "Diagnosis: which effect is missing", ("diagnosis",), diagnosis_section),
     ("ledger", "Error ledger", ("diagnosis",), ledger_section),
-    ("field", "Field flux maps", ("field",), field_section),
+    ("field", "Field flux maps", ("field",), _field_section),
 )
 
 

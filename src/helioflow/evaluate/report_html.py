@@ -90,7 +90,8 @@ def download(path: str | os.PathLike, mime: str = "text/csv") -> str:
 
 def fmt(value) -> str:
     """A table cell: floats to 4 significant digits, None as a dash, a list of more than
-    MAX_LIST items by its count and range (numbers) or counts (text), other lists and dicts as JSON."""
+    MAX_LIST items by its count and range (numbers) or counts (text), a shorter one item by item,
+    nested lists and dicts as JSON."""
     if isinstance(value, list) and len(value) > MAX_LIST:
         return _summary(value)
     if value is None:
@@ -101,6 +102,8 @@ def fmt(value) -> str:
         if value != 0 and not 1e-3 <= abs(value) < 1e5:
             return f"{value:.3e}"
         return f"{value:.4g}"
+    if isinstance(value, list) and all(map(_is_scalar, value)):
+        return "[" + ", ".join(map(fmt, value)) + "]"
     if isinstance(value, (list, dict)):
         return json.dumps(value, separators=(", ", ": "))
     return str(value)
