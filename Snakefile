@@ -12,7 +12,6 @@ include: "workflow/rules/surfaces.smk"
 include: "workflow/rules/trace.smk"
 include: "workflow/rules/paint.smk"
 include: "workflow/rules/networks.smk"
-include: "workflow/rules/diagnose.smk"
 include: "workflow/rules/report.smk"
 
 
