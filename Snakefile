@@ -12,6 +12,8 @@ include: "workflow/rules/surfaces.smk"
 include: "workflow/rules/trace.smk"
 include: "workflow/rules/paint.smk"
 include: "workflow/rules/networks.smk"
+include: "workflow/rules/field.smk"
+include: "workflow/rules/diagnose.smk"
 include: "workflow/rules/report.smk"
 
 

@@ -26,7 +26,7 @@ def _spec(args, params) -> dict:
         return json.loads(args.spec)
     if args.config is None or args.name is None:
         raise HelioflowError("give --spec JSON, or --config FILE and --name NAME")
-    return params(load_config(args.config), args.name)
+    return params(workflow.expand_field(load_config(args.config)), args.name)
 
 
 def cmd_surfaces(args) -> None:
@@ -98,6 +98,16 @@ def cmd_train(args) -> None:
                   seed=spec["seed"], train_images=spec["train_images"])
 
 
+def cmd_diagnose(args) -> None:
+    from .evaluate.diagnose import diagnose_dataset
+
+    dataset = os.path.splitext(os.path.basename(args.dataset))[0]
+    spec = _spec(args, lambda config, _: workflow.diagnose_params(config, dataset))
+    figures = {"signatures": args.signatures, "ranking": args.ranking, "residuals": args.residuals,
+               "ledger": args.ledger_figure}
+    diagnose_dataset(args.dataset, args.heliostat, spec["effects"], spec["settings"], args.output, figures, args.ledger)
+
+
 def cmd_evaluate(args) -> None:
     from .evaluate.evaluation import evaluate_model
 
@@ -106,6 +116,26 @@ def cmd_evaluate(args) -> None:
                             gan_samples=spec.get("gan_samples", 64))
     for split, m in result["splits"].items():
         logging.info("%s: %s", split, m)
+
+
+def cmd_compose_field(args) -> None:
+    from .evaluate.field_maps import compose_field
+
+    if args.spec is not None:
+        spec, inputs = json.loads(args.spec), {}
+    elif args.config is not None:
+        config = workflow.expand_field(load_config(args.config))
+        if not config.get("field"):
+            raise HelioflowError(f"{args.config} has no field section")
+        spec, inputs = workflow.compose_field_params(config), workflow.compose_field_inputs(config)
+    else:
+        raise HelioflowError("give --spec JSON or --config FILE")
+    models = args.models if args.models is not None else inputs.get("models", [])
+    datasets = args.datasets if args.datasets is not None else inputs.get("datasets", [])
+    metrics = compose_field(spec, models, datasets, args.flux, args.figure, args.metrics)
+    for name, m in metrics["summary"].items():
+        logging.info("%s: %s", name, {k: round(v, 4) for k, v in m.items()} if "flux_accuracy" in m else m)
+    logging.info("wrote %s, %s and %s in %.1f s", args.flux, args.figure, args.metrics, metrics["seconds"])
 
 
 def cmd_table(args) -> None:
@@ -178,6 +208,16 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--curve-figure", required=True, help="training curve PNG")
     p.set_defaults(func=cmd_train)
 
+    p = sub.add_parser("diagnose", help="which physical effect the model lacks, from a dataset's measurements")
+    _with_spec(p)
+    p.add_argument("--dataset", required=True, help="datasets/{dataset}.h5")
+    p.add_argument("--heliostat", required=True, help="surfaces/{heliostat}.h5 (its design geometry is traced)")
+    p.add_argument("--output", required=True, help="diagnosis/{dataset}.json")
+    p.add_argument("--ledger", required=True, help="the error ledger JSON kept across runs")
+    for name in ("signatures", "ranking", "residuals", "ledger-figure"):
+        p.add_argument(f"--{name}", required=True, help=f"{name} figure (PNG)")
+    p.set_defaults(func=cmd_diagnose)
+
     p = sub.add_parser("evaluate", help="score a model on every split of a dataset")
     p.add_argument("--spec", help="evaluation settings as JSON, e.g. '{\"gan_samples\": 64}'")
     p.add_argument("--model", required=True)
@@ -187,6 +227,17 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--grid", required=True, help="PNG: measured / predicted / difference")
     p.add_argument("--psnr", required=True, help="PNG: PSNR against sun position")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("compose-field", help="truth, ideal and hybrid flux maps of the field on the receiver")
+    p.add_argument("--spec", help="the rule's parameters as JSON (what the Snakefile passes)")
+    p.add_argument("--config", help="by hand: a config.yaml with a field section")
+    p.add_argument("--models", nargs="*", help="models/<heliostat>/<network>.pt of the measured heliostats "
+                   "(default with --config: under results/<experiment>/)")
+    p.add_argument("--datasets", nargs="*", help="datasets/<heliostat>.h5 of the measured heliostats, same order")
+    p.add_argument("--flux", required=True, help="field/flux.h5")
+    p.add_argument("--figure", required=True, help="field/flux.png")
+    p.add_argument("--metrics", required=True, help="field/metrics.json")
+    p.set_defaults(func=cmd_compose_field)
 
     p = sub.add_parser("table", help="Table 1 from metrics files")
     p.add_argument("--metrics", nargs="+", required=True)

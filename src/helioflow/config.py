@@ -128,18 +128,69 @@ def _check_references(config: dict, source: str) -> None:
         if ds["heliostat"] not in config["heliostats"]:
             known = ", ".join(config["heliostats"])
             raise ConfigError(f"{where}.heliostat = {ds['heliostat']!r} is not a heliostat in config; known: {known}")
-        sun = ds["sun"]
-        for key in _SUN_KEYS[sun["kind"]]:
-            if key not in sun:
-                raise ConfigError(f"{where}.sun: kind {sun['kind']!r} needs key {key!r}")
-        scalar_az = isinstance(sun.get("azimuth_deg"), (int, float))
-        if sun["kind"] == "scan" and not scalar_az:
-            raise ConfigError(f"{where}.sun.azimuth_deg = {sun['azimuth_deg']!r}: a scan needs one azimuth (a number)")
-        if sun["kind"] == "hemisphere" and scalar_az:
-            raise ConfigError(f"{where}.sun.azimuth_deg = {sun['azimuth_deg']!r}: expected a range [min, max]")
-        check_effects(ds.get("world_effects"), f"{where}.world_effects", allow_fit=False)
-        if ds["trace"]["splat"] == "bilinear" and ds["trace"].get("rays", 0) <= 0:
-            raise ConfigError(f"{where}.trace.rays = {ds['trace'].get('rays')!r}: bilinear splatting needs rays > 0")
+        _check_traced(ds, where)
+    if config.get("field"):
+        _check_field(config, f"{source}: field")
+
+
+def _check_traced(ds: dict, where: str) -> None:
+    """The checks of a traced dataset (or the field's calibration template) the schema cannot express."""
+    sun = ds["sun"]
+    for key in _SUN_KEYS[sun["kind"]]:
+        if key not in sun:
+            raise ConfigError(f"{where}.sun: kind {sun['kind']!r} needs key {key!r}")
+    scalar_az = isinstance(sun.get("azimuth_deg"), (int, float))
+    if sun["kind"] == "scan" and not scalar_az:
+        raise ConfigError(f"{where}.sun.azimuth_deg = {sun['azimuth_deg']!r}: a scan needs one azimuth (a number)")
+    if sun["kind"] == "hemisphere" and scalar_az:
+        raise ConfigError(f"{where}.sun.azimuth_deg = {sun['azimuth_deg']!r}: expected a range [min, max]")
+    check_effects(ds.get("world_effects"), f"{where}.world_effects", allow_fit=False)
+    if ds["trace"]["splat"] == "bilinear" and ds["trace"].get("rays", 0) <= 0:
+        raise ConfigError(f"{where}.trace.rays = {ds['trace'].get('rays')!r}: bilinear splatting needs rays > 0")
+
+
+_LAYOUT_KEYS = {"fermat": {"n", "min_radius_m", "spacing_m", "clearance_m", "sector_deg", "pivot_height_m"},
+                "list": {"positions"}, "csv": {"csv"}}
+_LAYOUT_KEYS["radial"] = _LAYOUT_KEYS["fermat"]
+_LAYOUT_REQUIRED = {"fermat": ("n", "min_radius_m"), "radial": ("n", "min_radius_m"), "list": ("positions",),
+                    "csv": ("csv",)}
+
+
+def _check_field(config: dict, where: str) -> None:
+    """The field section: its template heliostat and network exist, the layout has the keys of its
+    kind, exactly one way of choosing the measured heliostats, effects and calibration template
+    valid. What needs the layout itself (indices in range, generated names free) is checked by
+    helioflow.workflow.expand_field."""
+    field = config["field"]
+    if field["heliostat"] not in config["heliostats"]:
+        known = ", ".join(config["heliostats"])
+        raise ConfigError(f"{where}.heliostat = {field['heliostat']!r} is not a heliostat in config; known: {known}")
+    layout, kind = field["layout"], field["layout"]["kind"]
+    for key in _LAYOUT_REQUIRED[kind]:
+        if key not in layout:
+            raise ConfigError(f"{where}.layout: kind {kind!r} needs key {key!r}")
+    extra = sorted(set(layout) - _LAYOUT_KEYS[kind] - {"kind"})
+    if extra:
+        raise ConfigError(f"{where}.layout: key {extra[0]!r} is not used by kind {kind!r}; "
+                          f"kind {kind!r} takes {', '.join(sorted(_LAYOUT_KEYS[kind]))}")
+    if not any(abs(x) > 0 for x in field["receiver"]["normal"]):
+        raise ConfigError(f"{where}.receiver.normal = {field['receiver']['normal']}: expected a non-zero vector")
+    measured = field["measured"]
+    if ("indices" in measured) == ("fraction" in measured):
+        raise ConfigError(f"{where}.measured: give exactly one of 'indices' (a list) or 'fraction' (with 'seed')")
+    networks = config.get("networks") or {}
+    if field["network"] not in networks:
+        raise ConfigError(f"{where}.network = {field['network']!r} is not in networks; "
+                          f"networks has {', '.join(networks) or 'none'}")
+    from .models.registry import network_classes
+
+    if not network_classes(field["network"])[1].controllable:
+        raise ConfigError(f"{where}.network = {field['network']!r} cannot be steered by the sun position; "
+                          "choose a controllable model")
+    check_effects(field["world_effects"], f"{where}.world_effects", allow_fit=False)
+    check_effects(field["model_effects"], f"{where}.model_effects", allow_fit=True)
+    _check_traced(field["calibration"], f"{where}.calibration")
+    check_effects(field["calibration"].get("model_effects"), f"{where}.calibration.model_effects", allow_fit=True)
 
 
 _PAINT_KEYS = {"paint_dir", "resolution", "holdout", "targets"}

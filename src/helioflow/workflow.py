@@ -11,7 +11,7 @@ import copy
 import re
 from pathlib import Path
 
-from .errors import ConfigError
+from .errors import ConfigError, DataError
 
 PHYSICS_MODELS = ("raytrace", "drt")  # models that trace the heliostat file (models/physical.py)
 
@@ -186,15 +186,27 @@ def train_inputs(config: dict, dataset: str, model: str) -> dict:
     return inputs
 
 
+DIAGNOSIS_DEFAULTS = {"fit_images": 24, "heldout_images": 48, "fit_steps": 80, "rounds": 2, "cells_per_side": 16,
+                      "fit_rays": 50_000, "lr": 0.05}
+
+
+def diagnose_params(config: dict, dataset: str) -> dict:
+    """Parameters of rule `diagnose`: the dataset's model effects and the fit settings
+    (config `diagnosis`, defaults DIAGNOSIS_DEFAULTS)."""
+    return {"effects": model_effects(config, dataset),
+            "settings": {**DIAGNOSIS_DEFAULTS, **copy.deepcopy(config.get("diagnosis") or {})}}
+
+
 def evaluate_params(config: dict) -> dict:
     """Parameters of rule `evaluate`."""
     return copy.deepcopy(config.get("evaluation") or {})
 
 
 def metrics_paths(config: dict, include_efficiency: bool = False) -> list[str]:
-    """metrics/<dataset>/<model>.json of every trained network (and data-efficiency run)."""
+    """metrics/<dataset>/<model>.json of every trained network (and data-efficiency run) on every
+    dataset but the field's calibration datasets (network_datasets)."""
     names = models(config) if include_efficiency else list(config.get("networks") or {})
-    return [f"{results_dir(config)}/metrics/{d}/{m}.json" for d in config["datasets"] for m in names]
+    return [f"{results_dir(config)}/metrics/{d}/{m}.json" for d in network_datasets(config) for m in names]
 
 
 def efficiency_metrics(config: dict) -> list[str]:
@@ -207,19 +219,19 @@ def diagnosis_paths(config: dict) -> list[str]:
     """diagnosis/<dataset>.json of every dataset when the config has a `diagnosis` section, else none."""
     if "diagnosis" not in config:
         return []
-    return [f"{results_dir(config)}/diagnosis/{d}.json" for d in config["datasets"]]
+    return [f"{results_dir(config)}/diagnosis/{d}.json" for d in network_datasets(config)]
 
 
 def report_inputs(config: dict) -> dict[str, list[str]]:
     """Files rule `report` reads, by report section; a section the config leaves out is an empty
     list (the report says "not part of this experiment"). Together they are every final output."""
     r = results_dir(config)
-    datasets, networks = list(config["datasets"]), list(config.get("networks") or {})
+    datasets, networks = network_datasets(config), list(config.get("networks") or {})
     diagnosed = [Path(p).stem for p in diagnosis_paths(config)]
     efficiency = (config.get("data_efficiency") or {}).get("networks")
     return {
         "datasets": dataset_paths(config),
-        "dataset_figures": [f"{r}/figures/datasets/{d}.png" for d in datasets],
+        "dataset_figures": [f"{r}/figures/datasets/{d}.png" for d in config["datasets"]],
         "paint_centroids": [f"{r}/paint/{d}_centroids.json" for d in paint_datasets(config)],
         "table": [f"{r}/tables/table1.md", f"{r}/tables/table1.csv"] if networks else [],
         "samples": [f"{r}/figures/{d}/{m}_samples.png" for d in datasets for m in networks],
@@ -240,3 +252,172 @@ def report_path(config: dict) -> str:
 def all_targets(config: dict) -> list[str]:
     """What `snakemake all` builds: the report, whose inputs (`report_inputs`) are everything else."""
     return [report_path(config)]
+
+
+# --- the field (config `field`, rule compose_field) --------------------------------------------
+
+FIELD_PREFIX = "field_"
+LAYOUT_DEFAULTS = {"spacing_m": "auto", "clearance_m": 1.0, "sector_deg": 120.0, "pivot_height_m": 0.0}
+FIELD_ONLY_EFFECTS = ("blocking_shading",)  # acts in field traces only: left out of calibration datasets
+
+
+def field_size(field: dict) -> int:
+    """Number of heliostats of the field's layout (layout.n, or the rows of the list / CSV file)."""
+    layout = field["layout"]
+    if layout["kind"] in ("fermat", "radial"):
+        return layout["n"]
+    return len(field_positions(field, {}))
+
+
+def field_positions(field: dict, template: dict) -> list[list[float]]:
+    """Pivot positions, (n, 3) ENU in m rounded to the mm, of the field's layout.
+
+    fermat / radial: helioflow.physics.layout.fermat_spiral / radial_staggered of layout.n
+    heliostats outside min_radius_m in a sector of sector_deg around north, pivots pivot_height_m
+    up, no two closer than spacing_m (auto: the template mirror's diagonal plus clearance_m,
+    layout.min_spacing); list: the rows [east, north(, up)] of layout.positions; csv: the rows of
+    the file layout.csv (a header row is allowed). Defaults: LAYOUT_DEFAULTS.
+    """
+    from .physics import layout as geometry
+
+    spec = {**LAYOUT_DEFAULTS, **field["layout"]}
+    if spec["kind"] == "list":
+        positions = geometry.positions_from_list(spec["positions"], "field.layout.positions")
+    elif spec["kind"] == "csv":
+        try:
+            positions = geometry.load_positions(spec["csv"])
+        except DataError as exc:
+            raise ConfigError(f"field.layout.csv: {exc}") from None
+    else:
+        spacing = spec["spacing_m"]
+        if spacing == "auto":
+            f = template["facets"]
+            gap = f.get("gap_m", 0.0)
+            spacing = geometry.min_spacing(f["cols"] * f["width_m"] + (f["cols"] - 1) * gap,
+                                           f["rows"] * f["height_m"] + (f["rows"] - 1) * gap, spec["clearance_m"])
+        generate = geometry.fermat_spiral if spec["kind"] == "fermat" else geometry.radial_staggered
+        positions = generate(spec["n"], spacing, spec["min_radius_m"], spec["sector_deg"], spec["pivot_height_m"])
+    return [[round(float(x), 3) for x in row] for row in positions]
+
+
+def field_names(n: int) -> list[str]:
+    """field_000, field_001, ... (at least three digits; more for fields of 1000 and more)."""
+    width = max(3, len(str(n - 1)))
+    return [f"{FIELD_PREFIX}{i:0{width}d}" for i in range(n)]
+
+
+def measured_indices(field: dict, n: int) -> list[int]:
+    """Sorted layout indices of the measured heliostats: measured.indices, or a seeded random
+    choice (numpy default_rng(measured.seed)) of max(1, round(fraction * n)) heliostats."""
+    measured = field["measured"]
+    if "indices" in measured:
+        bad = [i for i in measured["indices"] if i >= n]
+        if bad:
+            raise ConfigError(f"field.measured.indices has {bad[0]}, but the field has {n} heliostats "
+                              f"(indices 0 to {n - 1})")
+        return sorted(measured["indices"])
+    import numpy as np
+
+    count = max(1, round(measured["fraction"] * n))
+    return sorted(np.random.default_rng(measured.get("seed", 0)).choice(n, count, replace=False).tolist())
+
+
+def field_measured(config: dict) -> list[str]:
+    """Names of the measured field heliostats, which are also their calibration datasets' names
+    (none without a field section)."""
+    field = config.get("field")
+    if not field:
+        return []
+    names = field_names(field_size(field))
+    return [names[i] for i in measured_indices(field, len(names))]
+
+
+def field_heliostats(config: dict) -> dict[str, dict]:
+    """The generated `heliostats` entries: field heliostat i is the template's section with its
+    own position and seed (field.seed + i), so that the `surfaces` rule gives it its own errors."""
+    field = config["field"]
+    template = config["heliostats"][field["heliostat"]]
+    positions = field_positions(field, template)
+    return {name: {**copy.deepcopy(template), "position_m": p, "seed": field["seed"] + i}
+            for i, (name, p) in enumerate(zip(field_names(len(positions)), positions))}
+
+
+def _field_effects(effects: dict | None) -> dict:
+    return {k: copy.deepcopy(v) for k, v in (effects or {}).items() if k not in FIELD_ONLY_EFFECTS}
+
+
+def field_datasets(config: dict) -> dict[str, dict]:
+    """The generated `datasets` entries: one calibration dataset per measured heliostat, named
+    like it, from field.calibration. Its world (and model) effects are field.world_effects
+    (model_effects) without the field-only ones, then the calibration's own entries: the
+    calibration images see the same atmosphere as the field."""
+    field = config["field"]
+    calibration = copy.deepcopy(field["calibration"])
+    world = {**_field_effects(field.get("world_effects")), **calibration.pop("world_effects", {})}
+    model = {**_field_effects(field.get("model_effects")), **calibration.pop("model_effects", {})}
+    return {name: {"source": "synthetic", "heliostat": name, **copy.deepcopy(calibration),
+                   "world_effects": copy.deepcopy(world), "model_effects": copy.deepcopy(model)}
+            for name in field_measured(config)}
+
+
+def expand_field(config: dict) -> dict:
+    """The config with the field's generated `heliostats` and `datasets` entries added (a copy; the
+    config itself without a field section). Applied right after validation (common.smk, the
+    CLI), so that the existing surfaces, trace, train and evaluate rules build the field's
+    heliostat geometries, calibration datasets and models. A generated name already in use
+    raises ConfigError."""
+    config = copy.deepcopy(config)
+    if not config.get("field"):
+        return config
+    for section, entries in (("heliostats", field_heliostats(config)), ("datasets", field_datasets(config))):
+        taken = sorted(set(entries) & set(config[section]))
+        if taken:
+            raise ConfigError(f"field: the generated name {taken[0]!r} is already in {section}; rename that entry "
+                              f"(field heliostats and their datasets are named {FIELD_PREFIX}<index>)")
+        config[section].update(entries)
+    return config
+
+
+def network_datasets(config: dict) -> list[str]:
+    """The datasets every network is trained and scored on, and diagnosed: all but the field's
+    calibration datasets, which train only field.network (see compose_field_inputs)."""
+    field = set(field_measured(config))
+    return [d for d in config["datasets"] if d not in field]
+
+
+def compose_field_inputs(config: dict) -> dict[str, list[str]]:
+    """Files rule `compose_field` reads: models/<heliostat>/<network>.pt and datasets/<heliostat>.h5
+    of every measured heliostat, in field_measured order."""
+    r, measured = results_dir(config), field_measured(config)
+    network = (config.get("field") or {}).get("network")
+    return {"models": [f"{r}/models/{m}/{network}.pt" for m in measured],
+            "datasets": [f"{r}/datasets/{m}.h5" for m in measured]}
+
+
+def compose_field_params(config: dict) -> dict:
+    """Parameters of rule `compose_field`: the template heliostat, every field heliostat's name,
+    position and seed, the measured ones, receiver, aim, design points, network, the world and model
+    effects of the field (world.effects / model.effects with field.world_effects /
+    field.model_effects replacing entries of the same name), trace cells, DNI, seed and device."""
+    field = config["field"]
+    heliostats = field_heliostats(config)
+    world = copy.deepcopy(config["world"].get("effects") or {})
+    world.update(copy.deepcopy(field.get("world_effects") or {}))
+    model = copy.deepcopy(config["model"].get("effects") or {})
+    model.update(copy.deepcopy(field.get("model_effects") or {}))
+    return {
+        "template": copy.deepcopy(config["heliostats"][field["heliostat"]]),
+        "heliostats": {"names": list(heliostats), "positions_m": [h["position_m"] for h in heliostats.values()],
+                       "seeds": [h["seed"] for h in heliostats.values()]},
+        "measured": field_measured(config),
+        "network": field["network"],
+        "receiver": copy.deepcopy(field["receiver"]),
+        "aim": copy.deepcopy(field["aim"]),
+        "sun": copy.deepcopy(field["sun"]),
+        "world_effects": world,
+        "model_effects": model,
+        "cells_per_side": field["cells_per_side"],
+        "dni_w_m2": config["dni_w_m2"],
+        "seed": config["seed"],
+        "device": config["device"],
+    }

@@ -10,6 +10,7 @@ from helioflow.physics.geometry import normalize, sun_vector
 from helioflow.physics.heliostat import (
     ideal_heliostat,
     canting_focal_distance,
+    without_planes,
     MOUNTS,
     REST_FRAME,
     Heliostat,
@@ -193,3 +194,14 @@ def test_canting_distance_recovered_from_facet_normals(distance):
         assert found is None
     else:
         assert found == pytest.approx(distance, rel=1e-3)
+
+
+def test_surface_shape_has_no_mean_height_or_mean_slope():
+    heights = without_planes(torch.randn(3, 6, 6, generator=torch.Generator().manual_seed(0), dtype=torch.float64))
+    b, db = (torch.as_tensor(a) for a in bspline_basis((np.arange(400) + 0.5) / 400, 6))
+    surface = torch.einsum("gi,fij,hj->fgh", b, heights, b)  # (F, 401, 401) over the unit facet
+    slope_u = torch.einsum("gi,fij,hj->fgh", db, heights, b)
+    slope_v = torch.einsum("gi,fij,hj->fgh", b, heights, db)
+    for field in (surface, slope_u, slope_v):
+        assert field.mean((-2, -1)).abs().max() < 1e-3 * heights.abs().max()
+    assert torch.allclose(without_planes(heights), heights, atol=1e-12)  # a projection

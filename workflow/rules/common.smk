@@ -4,9 +4,12 @@ import sys
 
 from helioflow.config import validate_config
 from helioflow.errors import ConfigError
+from helioflow.workflow import expand_field
 from helioflow.workflow import (
     all_targets,
     dataset_heliostat,
+    diagnose_params,
+    heliostat_path,
     efficiency_metrics,
     evaluate_params,
     import_paint_inputs,
@@ -25,7 +28,8 @@ from helioflow.workflow import (
 )
 
 try:
-    config = validate_config(config, workflow.source_path("../schemas/config.schema.yaml"))
+    # the field's heliostats and calibration datasets become config entries of their own
+    config = expand_field(validate_config(config, workflow.source_path("../schemas/config.schema.yaml")))
 except ConfigError as exc:
     sys.exit(f"helioflow: config error: {exc}")
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from abc import ABCMeta, abstractmethod
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -58,7 +59,7 @@ class SpotModel(nn.Module, metaclass=ABCMeta):
     name: str = "model"
     controllable: bool = True
     uses_loop: bool = True  # False: `prepare` does all the fitting and the loop runs no steps
-    curve: list[dict[str, float]] = []  # a model that fits itself in `prepare` puts its curve here
+    curve: ClassVar[list[dict[str, float]]] = []  # a model that fits itself in `prepare` puts its curve here
 
     def prepare(self, data: TrainingData) -> None:
         """Look at the training data once before training (e.g. keep it, or size the scene)."""

@@ -14,7 +14,6 @@ properties of the mirror that the calibration images measure.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
 import torch
@@ -24,9 +23,8 @@ from ..data.surfaces import read_heliostat
 from ..errors import ConfigError
 from ..physics.effects import FIT, REGISTRY, check_effects
 from ..physics.heliostat import Heliostat
-from ..physics.target import Target
 from .base import SpotModel, TrainingData
-from .physics_fit import FitResult, FitSettings, Measurements, Scene, fit_effects
+from .physics_fit import FitResult, FitSettings, Measurements, Scene, dataset_scene, fit_effects
 
 
 @dataclass(frozen=True)
@@ -105,16 +103,11 @@ class RaytraceModel(SpotModel):
         return self.config.effects
 
     def scene(self, fitting: bool = False) -> Scene:
-        """What the model traces: kernel splatting unless the dataset was traced with bilinear
-        rays (then `fit_rays` rays per image while fitting, the dataset's rays when predicting)."""
+        """What the model traces (see physics_fit.dataset_scene)."""
         c = self.config
-        target = Target(torch.tensor(c.aim_point_m, dtype=torch.float32), torch.tensor(c.target_normal, dtype=torch.float32),
-                        float(c.target_size_m[0]), float(c.target_size_m[1]), tuple(self.image_shape))
-        trace = c.dataset_trace or {}
-        if trace.get("splat") == "bilinear":
-            rays = c.fit_rays if fitting else int(trace.get("rays", c.fit_rays))
-            return Scene(self.heliostat, target, c.dni_w_m2, splat="bilinear", rays=rays, cells_per_side=c.cells_per_side)
-        return Scene(self.heliostat, target, c.dni_w_m2, cells_per_side=c.cells_per_side)
+        attrs = {"target_center_m": c.aim_point_m, "target_normal": c.target_normal, "target_size_m": c.target_size_m,
+                 "dni_w_m2": c.dni_w_m2, "trace": c.dataset_trace}
+        return dataset_scene(self.heliostat, attrs, self.image_shape, c.cells_per_side, c.fit_rays, fitting)
 
     def prepare(self, data: TrainingData) -> None:
         """Fit the model's parameters to (a spread subset of) the training images."""
@@ -132,11 +125,12 @@ class RaytraceModel(SpotModel):
     def get_extra_state(self) -> dict:
         h = self.heliostat
         return {"heliostat": None if h is None else {k: v for k, v in vars(h).items()},
-                "effects": self.fitted.effects, "tensors": self.fitted.tensors, "scale": self.scale}
+                "effects": self.fitted.effects, "tensors": self.fitted.tensors, "fitted": self.fitted.fitted,
+                "scale": self.scale}
 
     def set_extra_state(self, state: dict) -> None:
         self.heliostat = None if state["heliostat"] is None else Heliostat(**state["heliostat"])
-        self.fitted = FitResult(state["effects"], state["tensors"])
+        self.fitted = FitResult(state["effects"], state["tensors"], fitted=state["fitted"])
         self.scale = state["scale"]
 
     def configure_optimizers(self) -> dict:

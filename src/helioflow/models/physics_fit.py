@@ -89,6 +89,22 @@ def zero_mean(tilts: Tensor) -> Tensor:
     return tilts - tilts.mean(dim=0)
 
 
+def dataset_scene(heliostat: Heliostat, attrs: dict, image_shape: tuple[int, int], cells_per_side: int,
+                  fit_rays: int, fitting: bool) -> Scene:
+    """The scene of a dataset (its attributes: target_center_m, target_normal, target_size_m,
+    dni_w_m2, trace): kernel splatting unless the dataset was traced with bilinear rays - then
+    `fit_rays` rays per image while fitting (faster than kernels for many facets) and the
+    dataset's own rays when predicting."""
+    target = Target(torch.tensor(attrs["target_center_m"], dtype=torch.float32),
+                    torch.tensor(attrs["target_normal"], dtype=torch.float32),
+                    float(attrs["target_size_m"][0]), float(attrs["target_size_m"][1]), tuple(image_shape))
+    trace_settings = attrs.get("trace") or {}
+    if trace_settings.get("splat") == "bilinear":
+        rays = fit_rays if fitting else int(trace_settings.get("rays", fit_rays))
+        return Scene(heliostat, target, float(attrs["dni_w_m2"]), splat="bilinear", rays=rays, cells_per_side=cells_per_side)
+    return Scene(heliostat, target, float(attrs["dni_w_m2"]), cells_per_side=cells_per_side)
+
+
 @dataclass
 class Measurements:
     """Measured spots to fit: images (N, H, W) divided by `scale` (W/m^2), sun positions (N,) deg."""
@@ -101,17 +117,21 @@ class Measurements:
 
 @dataclass
 class FitResult:
-    """Fitted effect list (numbers; tensor parameters stay "fit"), tensors and the loss history."""
+    """Fitted effect list (numbers; tensor parameters stay "fit"), tensors (tracking (5,) mrad,
+    canting (F, 2) mrad, surface (F, C, C) mm), the loss history and which (effect, parameter)
+    pairs were fitted."""
 
     effects: dict
     tensors: dict[str, Tensor]
     history: list[float] = field(default_factory=list)
+    fitted: list[tuple[str, str]] = field(default_factory=list)
 
     def fitted_values(self) -> dict[str, float | list]:
-        """{"effect.parameter": value} of every fitted parameter, tensors as nested lists (mrad/mm)."""
+        """{"effect.parameter": value} of every fitted parameter, tensors as flat lists (mrad/mm)."""
         out = {}
-        for effect, name in fitted_parameters(self.effects):
-            out[f"{effect}.{name}"] = self.effects[effect][name]
+        for effect, name in self.fitted:
+            if effect not in self.tensors and not REGISTRY[effect].parameter(name).array:
+                out[f"{effect}.{name}"] = self.effects[effect][name]
         for effect, tensor in self.tensors.items():
             if effect == "tracking":
                 out.update({f"tracking.{n}": float(v) for n, v in zip(_tracking_names(), tensor.tolist())})
@@ -199,7 +219,7 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
     if linear:
         effects = fit.with_linear(effects, tensors)
     effective = {"tracking": lambda t: t, "canting": zero_mean, "surface": without_planes}
-    return FitResult(effects, {k: effective[k](v.detach()) for k, v in tensors.items()}, history)
+    return FitResult(effects, {k: effective[k](v.detach()) for k, v in tensors.items()}, history, pairs)
 
 
 class _Fitter:

@@ -207,25 +207,20 @@ def bspline_basis(x: np.ndarray, n_control: int, degree: int = 3) -> tuple[np.nd
     return basis(degree), t1 - t2
 
 
-def greville(n_control: int, degree: int = 3) -> np.ndarray:
-    """(C,) Greville abscissae of the clamped uniform basis: control heights that are a linear
-    function of them give exactly that plane as the surface."""
-    inner = np.linspace(0.0, 1.0, n_control - degree + 1)
-    knots = np.concatenate((np.zeros(degree), inner, np.ones(degree)))
-    return np.array([knots[i + 1 : i + 1 + degree].mean() for i in range(n_control)])
-
-
 def without_planes(heights: Tensor) -> Tensor:
-    """(F, C, C) control heights minus each facet's least-squares plane (piston and two tilts)
-    over the Greville grid: what is left is shape. A facet's tilt is its canting error and its
-    piston moves nothing, so the surface effect is defined without them."""
+    """(F, C, C) control heights without the part that moves a facet as a whole: the orthogonal
+    projection (in control-height space) onto heights whose surface has zero mean height and zero
+    mean slope along both facet axes. What is left is shape: a facet's mean tilt is its canting
+    error and its mean height moves nothing, so the surface effect is defined without them."""
     c = heights.shape[-1]
-    g = torch.as_tensor(greville(c), dtype=heights.dtype, device=heights.device) - 0.5
-    y, x = torch.meshgrid(g, g, indexing="ij")
-    design = torch.stack((torch.ones_like(x), x, y), dim=-1).reshape(-1, 3)  # (C*C, 3)
-    projector = design @ torch.linalg.pinv(design)  # (C*C, C*C)
+    b, db = (torch.as_tensor(a, dtype=heights.dtype, device=heights.device)
+             for a in bspline_basis((np.arange(512) + 0.5) / 512, c))
+    mean, slope = b.mean(0), db.mean(0)  # (C,) integrals over [0, 1] of the basis and its derivative
+    functionals = torch.stack((torch.outer(mean, mean), torch.outer(mean, slope), torch.outer(slope, mean)))
+    a = functionals.reshape(3, -1)  # (3, C*C): mean height, mean slope along each axis
+    projector = torch.eye(c * c, dtype=heights.dtype, device=heights.device) - a.T @ torch.linalg.solve(a @ a.T, a)
     flat = heights.reshape(heights.shape[0], -1)
-    return (flat - flat @ projector.T).reshape(heights.shape)
+    return (flat @ projector.T).reshape(heights.shape)
 
 
 @dataclass

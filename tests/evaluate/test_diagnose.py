@@ -1,0 +1,115 @@
+"""The diagnosis: a world with an effect the model lacks gets that effect ranked first, and fitting
+it cuts the held-out error by at least half; a model that matches the world raises no alarm."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from helioflow.evaluate.diagnose import ABSOLUTE_FLOOR, THRESHOLD, Diagnosis, misplaced_flux, update_ledger
+from helioflow.models.physics_fit import FitSettings, Measurements, Scene
+from helioflow.physics.heliostat import ideal_heliostat, without_planes
+from helioflow.physics.target import Target
+
+BUIE = {"kind": "buie", "csr": 0.1}
+SETTINGS = FitSettings(steps=100, lr=0.1, rounds=2, search_iterations=12)
+
+
+def true_heliostat() -> "Heliostat":  # noqa: F821
+    """2 x 2 facets canted at 63 m with seeded canting (1.5 mrad) and surface (1 mm) errors."""
+    h = ideal_heliostat(rows=2, cols=2, width=1.0, height=1.0, gap=0.05, position=(0.0, 60.0, 0.0),
+                        canting_focal_distance=63.0, control_points=5, dtype=torch.float32)
+    g = torch.Generator().manual_seed(3)
+    tilts = torch.randn(4, 2, generator=g) * 1.5e-3
+    heights = without_planes(torch.randn(4, 5, 5, generator=g).double()).float() * 1e-3
+    return replace(h, canting_error=tilts - tilts.mean(0), control_heights=heights)
+
+
+def sun_grid() -> tuple[torch.Tensor, torch.Tensor]:
+    az, el = torch.meshgrid(torch.linspace(-60.0, 60.0, 6), torch.linspace(20.0, 70.0, 5), indexing="ij")
+    return az.flatten(), el.flatten()
+
+
+def diagnosis(world: dict, model: dict, noise: float = 0.0) -> Diagnosis:
+    """World images traced with the true heliostat (plus Gaussian noise, a fraction of the
+    dataset's peak); the model traces the design (ideal) one."""
+    h = true_heliostat()
+    target = Target(torch.tensor([0.0, 0.0, 20.0]), torch.tensor([0.0, 1.0, 0.0]), 2.0, 2.0, (32, 32))
+    az, el = sun_grid()
+    with torch.no_grad():
+        images = Scene(h, target, 1000.0, cells_per_side=8).simulate(world, {}, az, el)
+    scale = float(images.max())
+    images = images + noise * scale * torch.randn(images.shape, generator=torch.Generator().manual_seed(5))
+    held = torch.arange(len(az)) % 3 == 0
+    train = Measurements(images[~held] / scale, az[~held], el[~held], scale)
+    heldout = Measurements(images[held] / scale, az[held], el[held], scale)
+    return Diagnosis(Scene(h.ideal(), target, 1000.0, cells_per_side=8), model, train, heldout, SETTINGS)
+
+
+CASES = {
+    "sunshape": ({"sunshape": {"kind": "gaussian", "sigma_mrad": 3.0}, "slope_error": {"sigma_mrad": 0.5}},
+                 {"slope_error": {"sigma_mrad": 0.5}}),
+    "slope_error": ({"sunshape": BUIE, "slope_error": {"sigma_mrad": 2.0}}, {"sunshape": BUIE}),
+    "tracking": ({"sunshape": BUIE, "tracking": {"axis1_offset_mrad": 2.0, "pedestal_tilt_east_mrad": -1.5}},
+                 {"sunshape": BUIE}),
+    "canting": ({"sunshape": BUIE, "canting": {}}, {"sunshape": BUIE}),
+    "surface": ({"sunshape": BUIE, "surface": {}}, {"sunshape": BUIE}),
+    "camera": ({"sunshape": BUIE, "camera": {"background_w_m2": 3000.0, "blur_px": 1.5}}, {"sunshape": BUIE}),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("hidden", list(CASES))
+def test_a_hidden_effect_is_ranked_first_and_fitting_it_halves_the_heldout_error(hidden):
+    world, model = CASES[hidden]
+    before, _, ranking, _ = diagnosis(world, model).rank()
+    top = ranking[0]
+    assert top["effect"] == hidden, [(r["effect"], round(r["relative_reduction"], 3)) for r in ranking]
+    assert top["relative_reduction"] >= 0.5
+    assert top["meaningful"]
+
+
+@pytest.mark.slow
+def test_two_hidden_effects_take_the_top_two_places():
+    world = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 2.0}, "tracking": {"axis2_offset_mrad": 2.5}}
+    _, _, ranking, _ = diagnosis(world, {"sunshape": BUIE}).rank()
+    assert {r["effect"] for r in ranking[:2]} == {"slope_error", "tracking"}, ranking
+
+
+@pytest.mark.slow
+def test_a_model_that_matches_the_world_raises_no_alarm():
+    """The measurements carry 2 % noise: fitting more parameters must not pass as a finding."""
+    world = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 1.0}}
+    _, _, ranking, _ = diagnosis(world, world, noise=0.02).rank()
+    assert not any(r["meaningful"] for r in ranking), [(r["effect"], r["relative_reduction"]) for r in ranking]
+
+
+def test_scale_effects_are_not_identifiable_and_ranked_last():
+    world = {"sunshape": BUIE, "reflectivity": {"value": 0.8}}
+    d = diagnosis(world, {"sunshape": BUIE})
+    d.candidates = lambda: (["reflectivity", "slope_error"], [])
+    _, _, ranking, _ = d.rank()
+    assert [r["effect"] for r in ranking] == ["slope_error", "reflectivity"]
+    assert ranking[1]["identifiable"] is False and not ranking[1]["meaningful"]
+    assert ranking[1]["fitted"]["value"] == pytest.approx(0.8, abs=0.01)  # the scale is still measured
+
+
+def test_misplaced_flux_ignores_scale_and_counts_moved_flux():
+    a = torch.zeros(1, 8, 8)
+    a[0, 2, 2] = 1.0
+    b = torch.zeros(1, 8, 8)
+    b[0, 5, 5] = 3.0
+    assert float(misplaced_flux(a, 7 * a)) == pytest.approx(0.0, abs=1e-12)
+    assert float(misplaced_flux(a, b)) == pytest.approx(1.0)  # no overlap: all of the flux misplaced
+    assert 0.0 < THRESHOLD < 1.0 and ABSOLUTE_FLOOR > 0.0
+
+
+def test_the_ledger_keeps_revisions_in_order_and_replaces_a_rerun(tmp_path):
+    path = tmp_path / "ledger.json"
+    update_ledger(path, "d1", {"sunshape": BUIE}, 0.2)
+    update_ledger(path, "d1", {"sunshape": BUIE, "tracking": {"axis1_offset_mrad": "fit"}}, 0.1)
+    ledger = update_ledger(path, "d1", {"sunshape": BUIE}, 0.19)
+    assert [(e["revision"], e["heldout_error"]) for e in ledger] == [(1, 0.19), (2, 0.1)]
+    assert update_ledger(path, "d2", {}, 0.5)[0]["revision"] == 1  # other measurements, own ledger
+    assert np.isclose(update_ledger(path, "d1", {"sunshape": BUIE}, 0.18)[0]["heldout_error"], 0.18)
