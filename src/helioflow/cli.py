@@ -233,7 +233,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--config", help="by hand: a config.yaml with a field section")
     p.add_argument("--models", nargs="*", help="models/<heliostat>/<network>.pt of the measured heliostats "
                    "(default with --config: under results/<experiment>/)")
-    p.add_argument("--datasets", nargs="*", help="datasets/<heliostat>.h5 of the measured heliostats, same order")
+    p.add_argument("--datasets", nargs="*",
+                   help="datasets/<heliostat>.h5 of the measured heliostats, in the same order")
     p.add_argument("--flux", required=True, help="field/flux.h5")
     p.add_argument("--figure", required=True, help="field/flux.png")
     p.add_argument("--metrics", required=True, help="field/metrics.json")

@@ -164,7 +164,8 @@ def _check_field(config: dict, where: str) -> None:
     field = config["field"]
     if field["heliostat"] not in config["heliostats"]:
         known = ", ".join(config["heliostats"])
-        raise ConfigError(f"{where}.heliostat = {field['heliostat']!r} is not a heliostat in config; known: {known}")
+        raise ConfigError(f"{where}.heliostat = {field['heliostat']!r} is not a heliostat in config; "
+                          f"known: {known}")
     layout, kind = field["layout"], field["layout"]["kind"]
     for key in _LAYOUT_REQUIRED[kind]:
         if key not in layout:
@@ -174,10 +175,12 @@ def _check_field(config: dict, where: str) -> None:
         raise ConfigError(f"{where}.layout: key {extra[0]!r} is not used by kind {kind!r}; "
                           f"kind {kind!r} takes {', '.join(sorted(_LAYOUT_KEYS[kind]))}")
     if not any(abs(x) > 0 for x in field["receiver"]["normal"]):
-        raise ConfigError(f"{where}.receiver.normal = {field['receiver']['normal']}: expected a non-zero vector")
+        raise ConfigError(f"{where}.receiver.normal = {field['receiver']['normal']}: "
+                          "expected a non-zero vector")
     measured = field["measured"]
     if ("indices" in measured) == ("fraction" in measured):
-        raise ConfigError(f"{where}.measured: give exactly one of 'indices' (a list) or 'fraction' (with 'seed')")
+        raise ConfigError(f"{where}.measured: give exactly one of 'indices' (a list) "
+                          "or 'fraction' (with 'seed')")
     networks = config.get("networks") or {}
     if field["network"] not in networks:
         raise ConfigError(f"{where}.network = {field['network']!r} is not in networks; "
@@ -190,7 +193,8 @@ def _check_field(config: dict, where: str) -> None:
     check_effects(field["world_effects"], f"{where}.world_effects", allow_fit=False)
     check_effects(field["model_effects"], f"{where}.model_effects", allow_fit=True)
     _check_traced(field["calibration"], f"{where}.calibration")
-    check_effects(field["calibration"].get("model_effects"), f"{where}.calibration.model_effects", allow_fit=True)
+    check_effects(field["calibration"].get("model_effects"), f"{where}.calibration.model_effects",
+                  allow_fit=True)
 
 
 _PAINT_KEYS = {"paint_dir", "resolution", "holdout", "targets"}

@@ -293,10 +293,12 @@ def field_positions(field: dict, template: dict) -> list[list[float]]:
         if spacing == "auto":
             f = template["facets"]
             gap = f.get("gap_m", 0.0)
-            spacing = geometry.min_spacing(f["cols"] * f["width_m"] + (f["cols"] - 1) * gap,
-                                           f["rows"] * f["height_m"] + (f["rows"] - 1) * gap, spec["clearance_m"])
+            width = f["cols"] * f["width_m"] + (f["cols"] - 1) * gap
+            height = f["rows"] * f["height_m"] + (f["rows"] - 1) * gap
+            spacing = geometry.min_spacing(width, height, spec["clearance_m"])
         generate = geometry.fermat_spiral if spec["kind"] == "fermat" else geometry.radial_staggered
-        positions = generate(spec["n"], spacing, spec["min_radius_m"], spec["sector_deg"], spec["pivot_height_m"])
+        positions = generate(spec["n"], spacing, spec["min_radius_m"], spec["sector_deg"],
+                             spec["pivot_height_m"])
     return [[round(float(x), 3) for x in row] for row in positions]
 
 
@@ -372,8 +374,8 @@ def expand_field(config: dict) -> dict:
     for section, entries in (("heliostats", field_heliostats(config)), ("datasets", field_datasets(config))):
         taken = sorted(set(entries) & set(config[section]))
         if taken:
-            raise ConfigError(f"field: the generated name {taken[0]!r} is already in {section}; rename that entry "
-                              f"(field heliostats and their datasets are named {FIELD_PREFIX}<index>)")
+            raise ConfigError(f"field: the generated name {taken[0]!r} is already in {section}; rename that "
+                              f"entry (field heliostats and their datasets are named {FIELD_PREFIX}<index>)")
         config[section].update(entries)
     return config
 
@@ -407,7 +409,8 @@ def compose_field_params(config: dict) -> dict:
     model.update(copy.deepcopy(field.get("model_effects") or {}))
     return {
         "template": copy.deepcopy(config["heliostats"][field["heliostat"]]),
-        "heliostats": {"names": list(heliostats), "positions_m": [h["position_m"] for h in heliostats.values()],
+        "heliostats": {"names": list(heliostats),
+                       "positions_m": [h["position_m"] for h in heliostats.values()],
                        "seeds": [h["seed"] for h in heliostats.values()]},
         "measured": field_measured(config),
         "network": field["network"],

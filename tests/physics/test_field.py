@@ -350,6 +350,24 @@ def test_power_budget_identity_on_a_random_field():
     assert all(torch.allclose(chunked.budget[k], b[k], rtol=1e-10, atol=1e-9) for k in BUDGET_TERMS)
 
 
+def test_single_spots_are_the_shares_of_the_map():
+    """spots=[...] returns those heliostats' own spots (across chunks), each integrating to its
+    on_receiver power; all of them sum to the map."""
+    field = FieldHeliostats.stack(_random_field(20, seed=3), 6)
+    receiver = flat_receiver([0.0, 0.0, 10.0], [0.0, 1.0, -0.2], 3.0, 3.0, (32, 32))
+    physics = resolve({"sunshape": {"kind": "pillbox"}, "blocking_shading": {}}, ideal_heliostat(),
+                      dni=1000.0)
+    az, el = torch.tensor([0.3, -0.8], dtype=DT), torch.tensor([0.4, 0.7], dtype=DT)
+    every = field_flux(field, receiver, az, el, physics.optics, spots=range(20), chunk=7)
+    assert every.spots.shape == (2, 20, 32, 32)
+    assert torch.allclose(every.spots.sum(1), every.flux, rtol=1e-10, atol=1e-9)
+    on_receiver = every.spots.sum((-2, -1)) * receiver.pixel_area
+    assert torch.allclose(on_receiver, every.budget["on_receiver"], rtol=1e-10)
+    some = field_flux(field, receiver, az, el, physics.optics, spots=[15, 2], chunk=7)
+    assert torch.equal(some.spots, every.spots[:, [15, 2]]) and torch.equal(some.flux, every.flux)
+    assert field_flux(field, receiver, az, el, physics.optics).spots is None
+
+
 def test_nothing_spills_from_a_receiver_that_holds_every_spot():
     """A pillbox sun's footprint ends at the disc plus 8 sigma of the slope blur: a large receiver
     catches all of it."""

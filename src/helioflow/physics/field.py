@@ -163,10 +163,13 @@ class FieldFlux:
     Attributes:
         flux: (S, H, W) flux density on the receiver (W/m^2), rows top first.
         budget: {term: (S, N) W} for each of BUDGET_TERMS (see the module docstring).
+        spots: (S, K, H, W) flux (W/m^2) of the K heliostats asked for by field_flux(spots=...),
+            each on its own (their shares of `flux`); None when none were asked for.
     """
 
     flux: Tensor
     budget: dict[str, Tensor]
+    spots: Tensor | None = None
 
     def totals(self) -> dict[str, Tensor]:
         """{term: (S,) W}: the budget summed over the heliostats."""
@@ -205,6 +208,7 @@ def field_flux(
     aim_points: Tensor | None = None,
     neighbours: int = 8,
     chunk: int = 16,
+    spots: Sequence[int] = (),
 ) -> FieldFlux:
     """Flux maps of a whole field on a flat receiver, one per sun position, and the power budget.
 
@@ -218,9 +222,10 @@ def field_flux(
         neighbours: neighbours tested per heliostat and direction (see the module docstring).
         chunk: heliostats traced at once; memory grows with it (a few MB per heliostat at
             WINDOW = 64), not with N.
+        spots: indices of K heliostats whose spots are also returned one by one.
 
     Returns:
-        FieldFlux with flux (S, H, W) W/m^2 and budget {term: (S, N) W}.
+        FieldFlux with flux (S, H, W) W/m^2, budget {term: (S, N) W} and spots (S, K, H, W) W/m^2.
     """
     if (elevation <= 0).any():
         raise ValueError(f"sun below the horizon: elevation {elevation.tolist()} rad; expected > 0")
@@ -228,16 +233,21 @@ def field_flux(
     aim = receiver.center if aim_points is None else aim_points
     aim = aim.to(dtype=dtype, device=device).expand(len(field), 3)
     suns = sun_vector(azimuth.to(dtype=dtype, device=device), elevation.to(dtype=dtype, device=device))
-    images, budgets = [], []
+    wanted = torch.as_tensor(list(spots), dtype=torch.long, device=device)
+    images, budgets, singles = [], [], []
     for sun in suns:
-        image, budget = _trace_sun(field, receiver, sun, aim, optics, blocking_shading, neighbours, chunk)
+        image, budget, single = _trace_sun(field, receiver, sun, aim, optics, blocking_shading, neighbours,
+                                           chunk, wanted)
         images.append(image)
         budgets.append(budget)
-    return FieldFlux(torch.stack(images), {k: torch.stack([b[k] for b in budgets]) for k in BUDGET_TERMS})
+        singles.append(single)
+    return FieldFlux(torch.stack(images), {k: torch.stack([b[k] for b in budgets]) for k in BUDGET_TERMS},
+                     torch.stack(singles) if len(wanted) else None)
 
 
-def _trace_sun(field, receiver, sun, aim, optics, blocking_shading, neighbours, chunk):
-    """One sun position: (H, W) flux (W/m^2) and {term: (N,) W}."""
+def _trace_sun(field, receiver, sun, aim, optics, blocking_shading, neighbours, chunk, wanted):
+    """One sun position: (H, W) flux (W/m^2), {term: (N,) W} and the (K, H, W) spots of the heliostats
+    `wanted` ((K,) long)."""
     n = len(field)
     rot = orientations(field, sun, aim)  # (N, 3, 3)
     rects = _facet_rectangles(field, rot)
@@ -251,16 +261,19 @@ def _trace_sun(field, receiver, sun, aim, optics, blocking_shading, neighbours, 
         block_idx = _candidates(field.position, normalize(aim - field.position), field.radius,
                                 half_diagonal / distance, k)
     image = torch.zeros(receiver.resolution, dtype=field.position.dtype, device=field.position.device)
+    single = image.new_zeros(len(wanted), *receiver.resolution)
     budget = {key: torch.zeros(n, dtype=image.dtype, device=image.device) for key in BUDGET_TERMS}
     for start in range(0, n, chunk):
         rows = torch.arange(start, min(start + chunk, n), device=image.device)
         candidates = None if shade_idx is None else tuple((i[rows], v[rows])
                                                            for i, v in (shade_idx, block_idx))
         part, terms = _trace_chunk(field, rows, rot, rects, receiver, sun, aim, optics, candidates)
-        image = image + part
+        image = image + part.sum(0)
+        k, j = torch.nonzero(wanted[:, None] == rows[None, :], as_tuple=True)
+        single[k] = part[j]
         for key, value in terms.items():
             budget[key][rows] = value
-    return image, budget
+    return image, budget, single
 
 
 def _facet_rectangles(field: FieldHeliostats, rot: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -328,7 +341,7 @@ def _hits(origin: Tensor, direction: Tensor, rects, index: Tensor, valid: Tensor
 
 
 def _trace_chunk(field, rows, rot, rects, receiver, sun, aim, optics, candidates):
-    """Heliostats `rows` ((B,) long): their (H, W) flux (W/m^2) and {term: (B,) W}."""
+    """Heliostats `rows` ((B,) long): their spots (B, H, W) (W/m^2) and {term: (B,) W}."""
     r = rot[rows]
     points = field.position[rows, None, :] + torch.einsum("bij,bpj->bpi", r, field.points[rows])  # (B, P, 3)
     normals = torch.einsum("bij,bpj->bpi", r, field.normals[rows])
@@ -358,7 +371,7 @@ def _trace_chunk(field, rows, rot, rects, receiver, sun, aim, optics, candidates
         "on_receiver": on_receiver,
     }
     terms["spilled"] = terms["reflected"] - terms["blocked"] - terms["attenuated"] - on_receiver
-    return spots.sum(0), terms
+    return spots, terms
 
 
 def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics: Optics) -> Tensor:
