@@ -1,0 +1,107 @@
+"""Physics models: gradients through every fittable effect, each fitting method recovering a known
+value, and the raytrace / drt models through training, saving and loading."""
+
+from dataclasses import replace
+
+import pytest
+import torch
+
+from helioflow.models.physical import drt_effects
+from helioflow.models.physics_fit import FitSettings, Measurements, Scene, fit_effects
+from helioflow.physics.heliostat import TRACKING_PARAMETERS, ideal_heliostat, without_planes
+from helioflow.physics.target import Target
+
+BUIE = {"kind": "buie", "csr": 0.1}
+
+
+def scene(rows: int = 1, cols: int = 1, dtype=torch.float32, **kw) -> Scene:
+    h = ideal_heliostat(rows=rows, cols=cols, width=1.0, height=1.0, gap=0.05, position=(0.0, 60.0, 0.0),
+                        control_points=5, dtype=dtype)
+    target = Target(torch.tensor([0.0, 0.0, 20.0], dtype=dtype), torch.tensor([0.0, 1.0, 0.0], dtype=dtype), 2.0, 2.0,
+                    (32, 32))
+    return Scene(h, target, 1000.0, cells_per_side=8, **kw)
+
+
+def suns(n: int = 12, elevations: int = 3) -> tuple[torch.Tensor, torch.Tensor]:
+    """n sun positions on a grid: azimuth -90..90 deg, elevation 15..80 deg."""
+    az, el = torch.meshgrid(torch.linspace(-90.0, 90.0, n // elevations), torch.linspace(15.0, 80.0, elevations),
+                            indexing="ij")
+    return az.flatten(), el.flatten()
+
+
+def measured(s: Scene, world: dict, tensors: dict | None = None, n: int = 12) -> Measurements:
+    az, el = suns(n, 4 if n % 4 == 0 else 3)
+    with torch.no_grad():
+        images = s.simulate(world, tensors or {}, az, el)
+    scale = float(images.max())
+    return Measurements(images / scale, az, el, scale)
+
+
+@pytest.mark.parametrize("effect, shape", [("tracking", (len(TRACKING_PARAMETERS),)), ("canting", (4, 2)),
+                                           ("surface", (4, 5, 5))])
+def test_gradients_through_each_heliostat_tensor_match_finite_differences(effect, shape):
+    s = scene(2, 2, dtype=torch.float64)  # float64: finite differences need the precision
+    az, el = (a.double() for a in suns(6))
+    values = torch.randn(shape, generator=torch.Generator().manual_seed(1), dtype=torch.float64) * 0.5
+    weights = torch.rand(32, 32, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+
+    def loss(v):
+        return (s.simulate({"sunshape": BUIE}, {effect: v}, az, el) * weights).sum() / 1e6
+
+    v = values.clone().requires_grad_(True)
+    loss(v).backward()
+    assert torch.isfinite(v.grad).all() and v.grad.abs().sum() > 0
+    direction = torch.randn(shape, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    if effect == "surface":  # only shape moves the spot: compare along a direction that is shape
+        direction = without_planes(direction)
+    if effect == "canting":
+        direction = direction - direction.mean(0)
+    h = 0.01
+    with torch.no_grad():
+        numeric = (loss(values + h * direction) - loss(values - h * direction)) / (2 * h)
+    assert float((v.grad * direction).sum()) == pytest.approx(float(numeric), rel=0.1)  # bilinear deposits are piecewise linear: FD crosses kinks
+
+
+@pytest.mark.slow
+def test_adam_recovers_tracking_errors():
+    s = scene()
+    truth = torch.tensor([1.5, -1.0, 0.5, 0.8, -0.7])
+    data = measured(s, {"sunshape": BUIE, "tracking": {}}, {"tracking": truth}, n=24)
+    effects = {"sunshape": BUIE, "tracking": {f"{n}_mrad": "fit" for n in TRACKING_PARAMETERS}}
+    result = fit_effects(s, effects, data, FitSettings(steps=200, lr=0.1))
+    assert torch.allclose(result.tensors["tracking"], truth, atol=0.2), result.tensors["tracking"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("effect, parameter, value", [("slope_error", "sigma_mrad", 1.5),
+                                                      ("camera", "blur_px", 1.2)])
+def test_golden_section_recovers_a_spread(effect, parameter, value):
+    s = scene()
+    world = {"sunshape": BUIE, effect: {parameter: value}}
+    result = fit_effects(s, {"sunshape": BUIE, effect: {parameter: "fit"}}, measured(s, world), FitSettings())
+    assert result.effects[effect][parameter] == pytest.approx(value, rel=0.05)
+    assert result.fitted_values() == {f"{effect}.{parameter}": result.effects[effect][parameter]}
+
+
+def test_least_squares_recovers_camera_gain_and_background():
+    s = scene()
+    world = {"sunshape": BUIE, "camera": {"gain": 0.7, "background_w_m2": 500.0}}
+    fitted = {"sunshape": BUIE, "camera": {"gain": "fit", "background_w_m2": "fit"}}
+    result = fit_effects(s, fitted, measured(s, world), FitSettings())
+    assert result.effects["camera"]["gain"] == pytest.approx(0.7, rel=1e-3)
+    assert result.effects["camera"]["background_w_m2"] == pytest.approx(500.0, rel=1e-2)
+
+
+def test_drt_fits_surface_canting_tracking_and_slope_where_the_model_leaves_them():
+    effects = drt_effects({"sunshape": BUIE, "tracking": {"axis1_offset_mrad": 0.3}}, n_facets=4)
+    assert effects["tracking"]["axis1_offset_mrad"] == 0.3 and effects["tracking"]["axis2_offset_mrad"] == "fit"
+    assert effects["surface"] == {"control_heights_mm": "fit"} and effects["canting"] == {"facet_tilts_mrad": "fit"}
+    assert effects["slope_error"] == {"sigma_mrad": "fit"}
+    assert "canting" not in drt_effects({"sunshape": BUIE}, n_facets=1)  # one facet: its tilt is tracking
+
+
+def test_a_point_sun_without_slope_error_is_traced_with_rays():
+    s = replace(scene(), rays=20_000)
+    az, el = suns(3)
+    images = s.simulate({"sunshape": {"kind": "point"}}, {}, az, el)
+    assert images.shape == (3, 32, 32) and torch.isfinite(images).all() and images.sum() > 0
