@@ -124,3 +124,14 @@ def test_load_config_names_the_file(tmp_path):
     bad.write_text((REPO / "config.yaml").read_text().replace("device: cpu", "device: gpu"))
     with pytest.raises(ConfigError, match=r"bad.yaml: device = 'gpu'"):
         load_config(bad)
+
+
+def test_a_variant_removes_default_entries_and_sections_with_null():
+    config = yaml.safe_load(open("config.yaml"))
+    config["datasets"]["semi_sphere"] = None
+    config["networks"]["nerf"] = None
+    config["field"] = None
+    checked = validate_config(config)
+    assert list(checked["datasets"]) == ["sanity_check"]
+    assert "nerf" not in checked["networks"] and "gan" in checked["networks"]
+    assert "field" not in checked

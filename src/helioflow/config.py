@@ -30,11 +30,25 @@ def load_config(path: str | Path) -> dict:
     return validate_config(config, source=str(path))
 
 
+REMOVABLE = ("datasets", "networks", "heliostats")
+OPTIONAL_SECTIONS = ("field", "diagnosis", "data_efficiency")
+
+
 def validate_config(config: dict, schema_path: str | Path = SCHEMA_PATH, source: str = "config") -> dict:
     """Check a config dict; raise one ConfigError naming key, value and what is allowed.
 
-    Returns a deep copy with the schema's defaults filled in.
+    Returns a deep copy with the schema's defaults filled in. An entry of `datasets`, `networks`
+    or `heliostats`, or an optional section (`field`, `diagnosis`, `data_efficiency`), set to null
+    is removed: how a `--configfile` variant, which snakemake merges into config.yaml key by key,
+    leaves out a default dataset, network or stage.
     """
+    config = copy.deepcopy(config)
+    for section in OPTIONAL_SECTIONS:
+        if section in config and config[section] is None:
+            del config[section]
+    for section in REMOVABLE:
+        if isinstance(config.get(section), dict):
+            config[section] = {k: v for k, v in config[section].items() if v is not None}
     schema = yaml.safe_load(Path(schema_path).read_text())
     validator = jsonschema.Draft7Validator(schema)
     errors = sorted(validator.iter_errors(config), key=lambda e: (len(e.absolute_path), list(map(str, e.absolute_path))))
