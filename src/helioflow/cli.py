@@ -26,7 +26,7 @@ def _spec(args, params) -> dict:
         return json.loads(args.spec)
     if args.config is None or args.name is None:
         raise HelioflowError("give --spec JSON, or --config FILE and --name NAME")
-    return params(workflow.expand_field(load_config(args.config)), args.name)
+    return params(workflow.expand_config(load_config(args.config)), args.name)
 
 
 def cmd_surfaces(args) -> None:
@@ -56,14 +56,14 @@ def cmd_import_paint(args) -> None:
         if args.paint_dir is None or args.heliostat is None:
             raise HelioflowError("by hand, give both --paint-dir and --heliostat")
         spec = {"paint_dir": args.paint_dir, "heliostat": args.heliostat, "resolution": args.resolution,
-                "holdout": args.holdout, "targets": args.targets}
+                "holdout": args.holdout, "targets": args.targets, "dni_w_m2": args.dni}
     else:
         spec = _spec(args, workflow.import_paint_params)
     if args.output is None and args.heliostat_output is None:
         raise HelioflowError("give --output (the dataset), --heliostat-output (the geometry) or both")
     ds = import_paint(spec["paint_dir"], spec["heliostat"], args.output, args.heliostat_output,
                       resolution=tuple(spec.get("resolution") or (64, 64)), holdout=spec.get("holdout") or [],
-                      targets=spec.get("targets"), dataset=spec.get("dataset"))
+                      targets=spec.get("targets"), dataset=spec.get("dataset"), dni_w_m2=spec.get("dni_w_m2", 1000.0))
     if ds is not None:
         labels = dict(Counter(ds.split.tolist()))
         logging.info("wrote %s: %d images of %s from %s/%s (splits %s; targets %s)", args.output, len(ds.images),
@@ -124,7 +124,7 @@ def cmd_compose_field(args) -> None:
     if args.spec is not None:
         spec, inputs = json.loads(args.spec), {}
     elif args.config is not None:
-        config = workflow.expand_field(load_config(args.config))
+        config = workflow.expand_config(load_config(args.config))
         if not config.get("field"):
             raise HelioflowError(f"{args.config} has no field section")
         spec, inputs = workflow.compose_field_params(config), workflow.compose_field_inputs(config)
@@ -150,6 +150,16 @@ def cmd_data_efficiency(args) -> None:
 
     plot_data_efficiency(args.metrics, args.figure, args.csv)
     logging.info("wrote %s and %s", args.figure, args.csv)
+
+
+def cmd_leave_one_out(args) -> None:
+    from .evaluate.leave_one_out import leave_one_out
+
+    inputs = json.loads(args.inputs)
+    by_network = {kind: {k.removeprefix(f"{kind}_"): v for k, v in inputs.items() if k.startswith(f"{kind}_")}
+                  for kind in ("model", "metrics")}
+    leave_one_out(inputs["datasets"], by_network["model"], by_network["metrics"], args.csv, args.figure)
+    logging.info("wrote %s and %s", args.csv, args.figure)
 
 
 def cmd_report(args) -> None:
@@ -190,6 +200,8 @@ def parser() -> argparse.ArgumentParser:
                    help="by hand: image size of the dataset (default 64 64)")
     p.add_argument("--holdout", nargs="*", default=[], metavar="ID", help="by hand: measurement ids held out")
     p.add_argument("--targets", nargs="+", metavar="NAME", help="by hand: only measurements on these targets")
+    p.add_argument("--dni", type=float, default=1000.0, metavar="W_M2",
+                   help="by hand: nominal DNI of the dataset's attribute dni_w_m2 (default 1000)")
     p.add_argument("--output", help="datasets/{dataset}.h5")
     p.add_argument("--heliostat-output", help="surfaces/{heliostat}.h5: the ideal heliostat geometry")
     p.set_defaults(func=cmd_import_paint)
@@ -257,6 +269,13 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=int, default=12, help="number of images shown")
     p.add_argument("--output", required=True, help="PNG file")
     p.set_defaults(func=cmd_plot_dataset)
+
+    p = sub.add_parser("leave-one-out", help="held-out scores and pictures of a leave-one-out run on real images")
+    p.add_argument("--inputs", required=True, help="JSON: datasets, model_<network> and metrics_<network> file "
+                   "lists, one per fold (what helioflow.workflow.leave_one_out_inputs gives)")
+    p.add_argument("--csv", required=True, help="leave_one_out/<dataset>.csv: per held-out image and network")
+    p.add_argument("--figure", required=True, help="PNG: measured and predicted held-out images")
+    p.set_defaults(func=cmd_leave_one_out)
 
     p = sub.add_parser("report", help="the self-contained HTML report of an experiment")
     p.add_argument("--inputs", required=True,

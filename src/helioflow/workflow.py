@@ -93,9 +93,16 @@ def name_pattern(names: list[str]) -> str:
     return "|".join(re.escape(n) for n in names) or "(?!)"
 
 
+def centroid_datasets(config: dict) -> list[str]:
+    """The PAINT datasets whose centroid check (rule paint_centroids) the report shows: every one,
+    but of leave-one-out folds (the same images) only the first."""
+    folds = {f for group in leave_one_out_groups(config).values() for f in group[1:]}
+    return [d for d in paint_datasets(config) if d not in folds]
+
+
 def import_paint_params(config: dict, dataset: str) -> dict:
     """Parameters of rule `import_paint`: the PAINT folder, image resolution (default
-    target.resolution), held-out measurement ids and the target filter."""
+    target.resolution), held-out measurement ids, the target filter and the nominal DNI."""
     ds = _dataset(config, dataset)
     if ds.get("source") != "paint":
         raise ConfigError(f"dataset {dataset!r} is not imported from PAINT (source: {ds.get('source')})")
@@ -106,6 +113,7 @@ def import_paint_params(config: dict, dataset: str) -> dict:
         "resolution": list(ds.get("resolution") or config["target"]["resolution"]),
         "holdout": list(ds.get("holdout") or []),
         "targets": ds.get("targets"),
+        "dni_w_m2": config["dni_w_m2"],
     }
 
 
@@ -232,7 +240,7 @@ def report_inputs(config: dict) -> dict[str, list[str]]:
     return {
         "datasets": dataset_paths(config),
         "dataset_figures": [f"{r}/figures/datasets/{d}.png" for d in config["datasets"]],
-        "paint_centroids": [f"{r}/paint/{d}_centroids.json" for d in paint_datasets(config)],
+        "paint_centroids": [f"{r}/paint/{d}_centroids.json" for d in centroid_datasets(config)],
         "table": [f"{r}/tables/table1.md", f"{r}/tables/table1.csv"] if networks else [],
         "samples": [f"{r}/figures/{d}/{m}_samples.png" for d in datasets for m in networks],
         "psnr": [f"{r}/figures/{d}/{m}_psnr.png" for d in datasets for m in networks],
@@ -241,6 +249,8 @@ def report_inputs(config: dict) -> dict[str, list[str]]:
         "diagnosis_figures": [f"{r}/figures/diagnosis/{d}_{kind}.png" for d in diagnosed
                               for kind in ("signatures", "ranking", "residuals", "ledger")],
         "field": [f"{r}/field/flux.png", f"{r}/field/metrics.json"] if "field" in config else [],
+        "leave_one_out": [p for g in leave_one_out_groups(config)
+                          for p in (f"{r}/figures/leave_one_out/{g}.png", f"{r}/leave_one_out/{g}.csv")],
     }
 
 
@@ -424,3 +434,93 @@ def compose_field_params(config: dict) -> dict:
         "seed": config["seed"],
         "device": config["device"],
     }
+
+
+# --- leave-one-out on a handful of real images (PAINT datasets with holdout: leave_one_out) -----
+
+LEAVE_ONE_OUT = "leave_one_out"
+LOO_MAX_FOLDS = 20  # more measurements than this: hold out a list of ids instead
+FOLD_KEY = "leave_one_out_of"  # marks a generated fold with its dataset's name
+
+
+def leave_one_out_ids(dataset: dict) -> list[str]:
+    """The measurement ids of a PAINT dataset on its `targets` (all when null), in import order;
+    ConfigError naming the folder when it cannot be read or holds no measurement."""
+    from .data.paint import measurement_targets
+
+    try:
+        targets = measurement_targets(dataset["paint_dir"], dataset["heliostat"])
+    except DataError as exc:
+        raise ConfigError(f"holdout: leave_one_out needs the measurement ids: {exc}") from None
+    keep = dataset.get("targets")
+    ids = [i for i, t in targets.items() if keep is None or t in keep]
+    if len(ids) < 2:
+        raise ConfigError(f"holdout: leave_one_out needs at least two measurements; "
+                          f"{Path(dataset['paint_dir']) / dataset['heliostat']} has {len(ids)}"
+                          + (f" on targets {keep}" if keep is not None else ""))
+    return ids
+
+
+def leave_one_out_folds(name: str, dataset: dict) -> dict[str, dict]:
+    """The fold datasets of a PAINT dataset with holdout: leave_one_out: '<name>_loo_<id>' per
+    measurement id (leave_one_out_ids), each the dataset with that one id held out and marked
+    with FOLD_KEY = name."""
+    ids = leave_one_out_ids(dataset)
+    if len(ids) > LOO_MAX_FOLDS:
+        raise ConfigError(f"datasets.{name}.holdout: leave_one_out would make {len(ids)} datasets, each training "
+                          f"every network (at most {LOO_MAX_FOLDS}); hold out a list of ids instead")
+    bad = [i for i in ids if not re.fullmatch(r"[A-Za-z0-9_-]+", i)]
+    if bad:
+        raise ConfigError(f"datasets.{name}.holdout: leave_one_out names a dataset per id, but id {bad[0]!r} has "
+                          "characters other than letters, digits, '_' and '-'")
+    return {f"{name}_loo_{i}": {**copy.deepcopy(dataset), "holdout": [i], FOLD_KEY: name} for i in ids}
+
+
+def expand_leave_one_out(config: dict) -> dict:
+    """The config (a copy) with every PAINT dataset whose holdout is leave_one_out replaced by its
+    folds (leave_one_out_folds), in place of it in `datasets`' order, so that the existing
+    import, train, evaluate and diagnose rules run per fold. A fold name already in use raises
+    ConfigError."""
+    config = copy.deepcopy(config)
+    datasets = {}
+    for name, ds in config["datasets"].items():
+        if ds.get("holdout") != LEAVE_ONE_OUT:
+            datasets[name] = ds
+            continue
+        folds = leave_one_out_folds(name, ds)
+        taken = sorted(set(folds) & set(config["datasets"]))
+        if taken:
+            raise ConfigError(f"datasets.{name}: the fold name {taken[0]!r} is already a dataset; rename it")
+        datasets.update(folds)
+    config["datasets"] = datasets
+    return config
+
+
+def expand_config(config: dict) -> dict:
+    """A validated config with its generated entries: the field's (expand_field) and the
+    leave-one-out folds (expand_leave_one_out). What common.smk and the CLI work with."""
+    return expand_leave_one_out(expand_field(config))
+
+
+def leave_one_out_groups(config: dict) -> dict[str, list[str]]:
+    """{dataset with holdout leave_one_out: its fold datasets} of an expanded config."""
+    groups: dict[str, list[str]] = {}
+    for name, ds in config["datasets"].items():
+        if FOLD_KEY in ds:
+            groups.setdefault(ds[FOLD_KEY], []).append(name)
+    return groups
+
+
+def leave_one_out_inputs(config: dict, group: str) -> dict[str, list[str]]:
+    """Files rule `leave_one_out` reads for one group: per fold (in order) its dataset, and per
+    network its model and per-image metrics CSV (keys model_<network>, metrics_<network>)."""
+    folds = leave_one_out_groups(config).get(group)
+    if not folds:
+        raise ConfigError(f"no leave-one-out dataset {group!r}; leave-one-out datasets: "
+                          f"{', '.join(leave_one_out_groups(config)) or 'none'}")
+    r = results_dir(config)
+    inputs = {"datasets": [f"{r}/datasets/{f}.h5" for f in folds]}
+    for network in config.get("networks") or {}:
+        inputs[f"model_{network}"] = [f"{r}/models/{f}/{network}.pt" for f in folds]
+        inputs[f"metrics_{network}"] = [f"{r}/metrics/{f}/{network}.csv" for f in folds]
+    return inputs

@@ -185,6 +185,10 @@ BAD_INPUTS = {
     "corrupt PNG": ("AA39/271633-flux.png", lambda p: p.write_bytes(p.read_bytes()[:300]),
                     "not a readable PNG image"),
     "missing PNG": ("AA39/extra1-flux.png", lambda p: p.unlink(), "does not exist"),
+    "target missing a corner": ("tower-measurements.json",
+                                lambda p: _edit_json(p, lambda d: d["multi_focus_tower"]["coordinates"].pop(
+                                    "upper_left")),
+                                "missing field 'multi_focus_tower.coordinates.upper_left'"),
     "tower file missing its origin": ("tower-measurements.json",
                                       lambda p: _edit_json(p, lambda d: d.pop("power_plant_properties")),
                                       "missing field 'power_plant_properties'"),

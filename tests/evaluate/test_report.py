@@ -22,7 +22,7 @@ from helioflow.workflow import all_targets, diagnosis_paths, report_inputs
 TINY = Path(__file__).resolve().parents[1] / "workflow" / "tiny_config.yaml"
 HEADINGS = ("Datasets", "Table 1", "Sample grids", "PSNR against sun position",
             "Diagnosis: which effect is missing",
-            "Error ledger", "Field flux maps", "Run times")
+            "Error ledger", "Field flux maps", "Leave-one-out on real images", "Run times")
 ABSENT = "Not part of this experiment."
 
 
@@ -91,6 +91,10 @@ def files(tmp_path):
     (r / "diagnosis/scan.json").write_text(json.dumps(DIAGNOSIS))
     (r / "field").mkdir()
     (r / "field/metrics.json").write_text(json.dumps(FIELD_METRICS))
+    (r / "leave_one_out").mkdir()
+    (r / "leave_one_out/aa39.csv").write_text(
+        "dataset,id,azimuth_deg,elevation_deg,split,network,psnr,ssim,centroid_mrad,flux_accuracy,misplaced_flux\n"
+        "aa39_loo_extra1,extra1,-62.2,23.4,extrapolation,drt,20.634,0.7,3.74,0.6,0.1964\n")
     _benchmark(r / "benchmarks/trace/scan.tsv", 2.5)
     _benchmark(r / "benchmarks/train/scan/nearest.tsv", 1.0, 3.0)
     inputs = {
@@ -104,6 +108,7 @@ def files(tmp_path):
         "diagnosis_figures": [_png(r / f"figures/diagnosis/scan_{k}.png")
                               for k in ("signatures", "ranking", "residuals", "ledger")],
         "field": [_png(r / "field/flux.png"), str(r / "field/metrics.json")],
+        "leave_one_out": [_png(r / "figures/leave_one_out/aa39.png"), str(r / "leave_one_out/aa39.csv")],
     }
     return inputs, r / "benchmarks"
 
@@ -136,6 +141,8 @@ def test_report_has_every_section_with_figures_inline_and_no_links_to_files(file
     field = _section(text, "Field flux maps")
     assert "<td>noon / hybrid</td>" in field and "31.2" in field
     assert "<td>noon / hybrid / per_heliostat</td>" in field
+    loo = _section(text, "Leave-one-out on real images")
+    assert "<h3>Held-out scores: aa39</h3>" in loo and "<td>extra1</td><td>drt</td>" in loo and ">0.196<" in loo
     runs = _section(text, "Run times")
     assert "<td>train</td><td>scan/nearest</td><td class=\"num\">2.00</td>" in runs  # mean of the repeats
     assert "<td>total</td><td>2 jobs</td><td class=\"num\">4.50</td>" in runs
@@ -184,6 +191,9 @@ def test_bad_inputs_raise_one_clear_error_naming_the_file(tmp_path):
     (tmp_path / "d.json").write_text(json.dumps({"dataset": "scan"}))
     with pytest.raises(DataError, match="d.json: not a diagnosis JSON"):
         build_report({"diagnosis": [str(tmp_path / "d.json")]}, None, "t")
+    (tmp_path / "l.csv").write_text("id,network\n1,drt\n")
+    with pytest.raises(DataError, match="l.csv: not a leave-one-out CSV"):
+        build_report({"leave_one_out": [str(tmp_path / "l.csv")]}, None, "t")
     with pytest.raises(DataError, match="missing.json: cannot read report input"):
         build_report({"field": [str(tmp_path / "missing.json")]}, None, "t")
     (tmp_path / "b/rule").mkdir(parents=True)
@@ -226,7 +236,7 @@ def test_report_inputs_of_the_tiny_config_list_the_expected_files():
         "datasets": [f"{r}/datasets/scan.h5", f"{r}/datasets/sky.h5"],
         "dataset_figures": [f"{r}/figures/datasets/scan.png", f"{r}/figures/datasets/sky.png"],
         "paint_centroids": [], "table": [], "samples": [], "psnr": [], "data_efficiency": [],
-        "diagnosis": [], "diagnosis_figures": [], "field": [],
+        "diagnosis": [], "diagnosis_figures": [], "field": [], "leave_one_out": [],
     }
     config = copy.deepcopy(config)
     config.update(networks={"nearest": {}}, diagnosis={}, field={})

@@ -62,7 +62,7 @@ def test_import_params_default_the_resolution_to_the_targets_and_inputs_list_the
     config = validate_config(_config())
     params = import_paint_params(config, "aa39")
     assert params == {"dataset": "aa39", "paint_dir": str(PAINT), "heliostat": "AA39", "resolution": [16, 16],
-                      "holdout": ["extra1"], "targets": None}
+                      "holdout": ["extra1"], "targets": None, "dni_w_m2": config["dni_w_m2"]}
     wide = validate_config(_config(resolution=[64, 64]))
     assert import_paint_params(wide, "aa39")["resolution"] == [64, 64]
     assert paint_heliostat_params(config, "AA39") == {"paint_dir": str(PAINT), "heliostat": "AA39"}

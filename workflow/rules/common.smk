@@ -4,7 +4,7 @@ import sys
 
 from helioflow.config import validate_config
 from helioflow.errors import ConfigError
-from helioflow.workflow import expand_field
+from helioflow.workflow import expand_config
 from helioflow.workflow import (
     all_targets,
     dataset_heliostat,
@@ -13,6 +13,8 @@ from helioflow.workflow import (
     efficiency_metrics,
     evaluate_params,
     import_paint_inputs,
+    leave_one_out_groups,
+    leave_one_out_inputs,
     import_paint_params,
     metrics_paths,
     name_pattern,
@@ -28,8 +30,9 @@ from helioflow.workflow import (
 )
 
 try:
-    # the field's heliostats and calibration datasets become config entries of their own
-    config = expand_field(validate_config(config, workflow.source_path("../schemas/config.schema.yaml")))
+    # the field's heliostats and calibration datasets, and the leave-one-out folds of PAINT
+    # datasets, become config entries of their own
+    config = expand_config(validate_config(config, workflow.source_path("../schemas/config.schema.yaml")))
 except ConfigError as exc:
     sys.exit(f"helioflow: config error: {exc}")
 

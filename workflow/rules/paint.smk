@@ -60,3 +60,28 @@ rule paint_centroids:
     shell:
         "helioflow --threads {threads} paint-centroids --dataset {input.dataset}"
         " --heliostat {input.heliostat} --output {output.centroids} > {log} 2>&1"
+
+
+rule leave_one_out:
+    """Held-out scores and pictures of every network on each image of a leave-one-out PAINT dataset."""
+    input:
+        unpack(lambda wc: leave_one_out_inputs(config, wc.dataset)),
+    output:
+        csv=f"{RESULTS}/leave_one_out/{{dataset}}.csv",
+        figure=report(
+            f"{RESULTS}/figures/leave_one_out/{{dataset}}.png",
+            caption="../report/leave_one_out.rst",
+            category="Real measurements",
+        ),
+    wildcard_constraints:
+        dataset=name_pattern(list(leave_one_out_groups(config))),
+    params:
+        inputs=lambda wc: json.dumps(leave_one_out_inputs(config, wc.dataset)),
+    log:
+        f"{RESULTS}/logs/leave_one_out/{{dataset}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/leave_one_out/{{dataset}}.tsv"
+    threads: 1
+    shell:
+        "helioflow --threads {threads} leave-one-out --inputs {params.inputs:q} --csv {output.csv}"
+        " --figure {output.figure} > {log} 2>&1"

@@ -23,7 +23,10 @@ Conventions (checked against the data; see tests/data/test_paint.py):
   UTIS centroid to 1-4 cm (UTIS counts pixel corners, not centres: half a pixel). The
   ``-flux-centered`` image is shifted onto the spot and so loses where the spot is; it is not
   used. Grey levels are divided by 255 (65535 for 16-bit): each PNG is normalised to its own
-  peak, so images are relative flux, not W/m^2, and intensities across images are not comparable.
+  peak, so images are relative flux, not W/m^2, and intensities across images are not comparable
+  (attribute ``per_image_normalised``; the physics models fit them by shape). The attribute
+  ``dni_w_m2`` is the nominal DNI a model traces them with (config ``dni_w_m2``): PAINT records
+  none, and on relative images it sets only the unit of the traced flux.
   Images are resampled to the configured resolution by exact area averaging over the same target
   extent, so pixel centres keep their target coordinates (nothing shifts).
 - Heliostat: PAINT facets are given for the mirror lying flat, facing up, in (e, n, u); mounted,
@@ -321,6 +324,15 @@ def _sort_key(mid: str):
     return (not mid.isdigit(), int(mid) if mid.isdigit() else 0, mid)
 
 
+def measurement_targets(paint_dir: str | os.PathLike, heliostat: str) -> dict[str, str]:
+    """{measurement id: target name} of a heliostat folder (numeric ids first, in order), read from
+    each <id>-calibration-properties.json alone: what splitting a dataset into folds needs
+    (`helioflow.workflow.expand_leave_one_out`); the import checks everything else."""
+    folder = heliostat_folder(Path(paint_dir), heliostat)
+    paths = sorted(folder.glob(f"*{CALIBRATION_SUFFIX}"), key=lambda p: _sort_key(p.name[: -len(CALIBRATION_SUFFIX)]))
+    return {p.name[: -len(CALIBRATION_SUFFIX)]: field(read_json(p), p, "target_name", "string") for p in paths}
+
+
 def read_measurements(folder: Path, tower: Tower, targets: list[str] | None) -> list[Measurement]:
     """Every measurement of a heliostat folder (numeric ids first, in order), optionally only
     those on `targets`; DataError if there are none."""
@@ -373,6 +385,7 @@ def import_paint(
     holdout: list[str] = (),
     targets: list[str] | None = None,
     dataset: str | None = None,
+    dni_w_m2: float = 1000.0,
 ) -> CalibrationDataset | None:
     """Import one PAINT heliostat folder (conventions in the module docstring).
 
@@ -389,6 +402,7 @@ def import_paint(
         holdout: measurement ids held out of training (module docstring: Splits).
         targets: import only measurements on these targets; None = all.
         dataset: the dataset's name (attribute); default the heliostat's.
+        dni_w_m2: the nominal DNI (W/m^2) of the dataset's attribute (module docstring: Images).
 
     Returns:
         The dataset written to `dataset_path`, or None when only the geometry was asked for.
@@ -402,7 +416,7 @@ def import_paint(
     geometry, source = read_heliostat_properties(folder / PROPERTIES_FILE, tower)
     ds = None
     if dataset_path is not None:
-        spec = {"paint_dir": str(paint_dir), "targets": targets}
+        spec = {"paint_dir": str(paint_dir), "targets": targets, "dni_w_m2": float(dni_w_m2)}
         ds = build_dataset(measurements, tower, geometry, tuple(resolution), list(holdout), folder,
                            dataset or heliostat, heliostat, spec)
     written: list[Path] = []
@@ -447,6 +461,7 @@ def build_dataset(measurements: list[Measurement], tower: Tower, geometry: Helio
         "conventions": CONVENTIONS.replace("flux in W/m^2 for the DNI in attribute dni_w_m2",
                                            "relative flux (see units)"),
         "per_image_normalised": True,
+        "dni_w_m2": spec["dni_w_m2"],
         "source_image_shape": list(raw[0].shape),
         "target_name": main,
         "target_center_m": ref.center.tolist(),

@@ -13,6 +13,8 @@ benchmark files, and writes results/<experiment>/report.html with the sections
     Error ledger        the `ledger` of each diagnosis JSON and figures/diagnosis/<d>_ledger.png
     Field flux maps     field/flux.png (truth, ideal, hybrid maps beside their differences to truth)
                         and field/metrics.json as tables
+    Leave-one-out       figures/leave_one_out/<d>.png and leave_one_out/<d>.csv (held-out scores
+                        per real image and network) as a table
     Run times           benchmarks/<rule>/<wildcards>.tsv (snakemake's benchmark files)
 
 A section whose files are all absent from the inputs says "Not part of this experiment".
@@ -45,7 +47,7 @@ from .report_html import (
 )
 
 SECTIONS = ("datasets", "dataset_figures", "paint_centroids", "table", "samples", "psnr", "data_efficiency",
-            "diagnosis", "diagnosis_figures", "field")
+            "diagnosis", "diagnosis_figures", "field", "leave_one_out")
 ABSENT = '<p class="absent">Not part of this experiment.</p>'
 
 
@@ -122,6 +124,29 @@ def _field_section(files: dict[str, list[str]]) -> str:
     return "\n".join(parts)
 
 
+def _leave_one_out_section(files: dict[str, list[str]]) -> str:
+    """Per leave-one-out dataset: the figure of held-out images and the scores as a table."""
+    parts = []
+    for path in files["leave_one_out"]:
+        name = Path(path).stem
+        if Path(path).suffix == ".png":
+            parts.append(figure(path, f"{name}: each image held out and predicted by models fitted on the others"))
+            continue
+        try:
+            records = list(csv.DictReader(io.StringIO(read_bytes(path).decode("utf-8"))))
+        except UnicodeDecodeError as exc:
+            raise DataError(f"{path}: not a leave-one-out CSV: {exc}") from None
+        keys = ("id", "network", "psnr", "centroid_mrad", "misplaced_flux")
+        if not records or any(k not in records[0] for k in keys):
+            raise DataError(f"{path}: not a leave-one-out CSV (written by `leave-one-out`): needs columns "
+                            f"{', '.join(keys)}")
+        rows = [[r["id"], r["network"], fixed(_number(r["psnr"]), 2), fixed(_number(r["centroid_mrad"]), 2),
+                 fixed(_number(r["misplaced_flux"]), 3)] for r in records]
+        parts += [f"<h3>Held-out scores: {esc(name)}</h3>",
+                  table(["held-out id", "network", "PSNR (dB)", "centroid error (mrad)", "misplaced flux"], rows)]
+    return "\n".join(parts)
+
+
 # (anchor, heading, the input sections it shows, renderer of the files by section)
 LAYOUT = (
     ("datasets", "Datasets", ("datasets", "dataset_figures", "paint_centroids"), _datasets_section),
@@ -131,6 +156,7 @@ LAYOUT = (
     ("diagnosis", "Diagnosis: which effect is missing", ("diagnosis",), diagnosis_section),
     ("ledger", "Error ledger", ("diagnosis",), ledger_section),
     ("field", "Field flux maps", ("field",), _field_section),
+    ("leave_one_out", "Leave-one-out on real images", ("leave_one_out",), _leave_one_out_section),
 )
 
 

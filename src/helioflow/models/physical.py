@@ -7,6 +7,11 @@ target; training is the fit of `physics_fit.fit_effects` on the train split (abs
 images divided by the dataset's maximum, as the metrics compare them), run once in `prepare`
 (the shared loop then runs no steps). The fit's loss per Adam step is the training curve.
 
+Real images normalised each to its own peak (PAINT, dataset attribute ``per_image_normalised``)
+carry no comparable intensity between images: every image has its own unknown camera gain. Such a
+dataset is fitted scale-free (loss "shape": each image divided by its own sum) and the model
+predicts each image divided by its own peak, as the measured ones were.
+
 drt fits slope error as well as the surface control points: control points describe the
 large-scale shape, slope error the small-scale roughness below their resolution; both are
 properties of the mirror that the calibration images measure.
@@ -46,6 +51,8 @@ class PhysicsConfig:
             attributes; a dataset traced with bilinear rays is fitted with `fit_rays` rays per
             image (faster than kernel splatting for many facets) and predicted with its rays.
         fit_rays: rays per image of a bilinear fit.
+        per_image_normalised: the dataset's images are each divided by their own peak (from its
+            attributes): fit by shape, predict peak-normalised images (module docstring).
     """
 
     effects: dict = field(default_factory=dict)
@@ -61,6 +68,7 @@ class PhysicsConfig:
     cells_per_side: int = 16
     dataset_trace: dict | None = None
     fit_rays: int = 100_000
+    per_image_normalised: bool = False
 
     def __post_init__(self):
         check_effects(self.effects, "model.effects", allow_fit=True)
@@ -117,7 +125,8 @@ class RaytraceModel(SpotModel):
         index = torch.linspace(0, n - 1, min(n, self.config.fit_images)).round().long()
         measured = Measurements(data.images[index], data.azimuth_deg[index], data.elevation_deg[index], data.scale)
         c = self.config
-        settings = FitSettings(steps=c.fit_steps, lr=c.lr, rounds=c.rounds)
+        settings = FitSettings(steps=c.fit_steps, lr=c.lr, rounds=c.rounds,
+                               loss="shape" if c.per_image_normalised else "absolute")
         self.fitted = fit_effects(self.scene(fitting=True), self.effects_to_fit(self.heliostat), measured, settings,
                                   progress=True, label=f"fit {self.name}")
         self.curve = [{"step": i, "loss": v} for i, v in enumerate(self.fitted.history)]
@@ -140,9 +149,12 @@ class RaytraceModel(SpotModel):
         return {}
 
     def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor, generator: torch.Generator) -> Tensor:
-        """(N,) sun positions (deg) -> (N, H, W) images divided by the training scale."""
+        """(N,) sun positions (deg) -> (N, H, W) images divided by the training scale (each by its
+        own peak first for a per-image normalised dataset)."""
         images = self.scene().simulate(self.fitted.effects, self.fitted.tensors, azimuth_deg.float(),
                                        elevation_deg.float(), seed=1)
+        if self.config.per_image_normalised:
+            images = images / images.amax((-2, -1), keepdim=True).clamp_min(1e-30)
         return images / self.scale
 
 
