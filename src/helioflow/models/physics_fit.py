@@ -201,9 +201,12 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
     linear = [p for p in pairs if p in SCALES or p in OFFSETS]
     spread = [p for p in pairs if p not in linear and not REGISTRY[p[0]].parameter(p[1]).array
               and p[0] != "tracking"]
-    for e, k in pairs:  # start values: the registry default
-        if (e, k) in linear or (e, k) in spread:
-            effects[e][k] = REGISTRY[e].parameter(k).default
+    for e, k in pairs:  # start values: a spread starts (almost) absent, a linear scalar at its default
+        p = REGISTRY[e].parameter(k)
+        if (e, k) in spread:
+            effects[e][k] = max(p.lower or SEARCH_FLOOR, SEARCH_FLOOR)
+        elif (e, k) in linear:
+            effects[e][k] = p.default
     tensors, masks = initial_tensors(effects, scene.heliostat)
     target = normalised(data.images, settings.loss, 1.0)
     fit = _Fitter(scene, data, target, settings, linear)
