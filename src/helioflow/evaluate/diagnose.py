@@ -206,7 +206,7 @@ def summarise(sig: dict[str, np.ndarray]) -> dict:
     """Numbers the verdict and the JSON quote, over all images."""
     ratio = float(np.median(sig["width_ratio"]))
     return {"centroid": float(np.sqrt(np.mean(sig["centroid_right_mrad"] ** 2 + sig["centroid_up_mrad"] ** 2))),
-            "width": f"{abs(ratio - 1):.0%} " + ("wider" if ratio >= 1 else "narrower"),
+            "width": f"{abs(ratio - 1):.1%} " + ("wider" if ratio >= 1 else "narrower"),
             "width_ratio": ratio, "outside": float(np.median(sig["energy_outside_core"])),
             "ratio": float(np.median(sig["energy_ratio"]))}
 
