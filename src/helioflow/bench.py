@@ -26,13 +26,13 @@ import time
 
 import torch
 
+from .config import HeliostatSpec
+from .data.surfaces import true_heliostat
 from .physics.effects import resolve
 from .physics.field import FieldHeliostats, field_flux, flat_receiver
 from .physics.layout import min_spacing, radial_staggered
 from .physics.raytrace import trace
 from .physics.target import Target
-from .data.surfaces import true_heliostat
-from .config import HeliostatSpec
 
 SCENE_HELIOSTAT = HeliostatSpec("bench", (0.0, 60.0, 0.0), "az_el", 1, 1, 2.0, 2.0, 0.0, None, None, 6, 0.5, 1.0, 0.0, 1)
 SCENE_EFFECTS = {"sunshape": {"kind": "buie", "csr": 0.1}, "slope_error": {"sigma_mrad": 0.5}, "tracking": {},

@@ -253,7 +253,7 @@ class HeliostatSpec:
     seed: int
 
     @staticmethod
-    def from_config(name: str, d: dict) -> "HeliostatSpec":
+    def from_config(name: str, d: dict) -> HeliostatSpec:
         f = d["facets"]
         return HeliostatSpec(
             name, tuple(d["position_m"]), d["mount"], f["rows"], f["cols"], f["width_m"], f["height_m"],

@@ -81,10 +81,9 @@ def test_generic_arrays_round_trip_and_required_key(tmp_path):
 
 def test_atomic_write_leaves_nothing_when_block_raises(tmp_path):
     path = tmp_path / "out.h5"
-    with pytest.raises(RuntimeError):
-        with atomic_h5(path) as f:
-            f["x"] = np.zeros(3)
-            raise RuntimeError("boom")
+    with pytest.raises(RuntimeError), atomic_h5(path) as f:
+        f["x"] = np.zeros(3)
+        raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []
 
 

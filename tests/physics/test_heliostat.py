@@ -8,20 +8,20 @@ import torch
 
 from helioflow.physics.geometry import normalize, sun_vector
 from helioflow.physics.heliostat import (
-    ideal_heliostat,
-    canting_focal_distance,
-    without_planes,
     MOUNTS,
     REST_FRAME,
     Heliostat,
     bspline_basis,
+    canting_focal_distance,
     facet_frames,
     facet_layout,
+    ideal_heliostat,
     ideal_joint_angles,
     joint_rotation,
     on_axis_canting,
     orientation,
     sample_surface,
+    without_planes,
 )
 
 DT = torch.float64

@@ -4,7 +4,14 @@ import pytest
 
 from helioflow.config import load_config
 from helioflow.errors import ConfigError
-from helioflow.workflow import efficiency_metrics, models, parse_model, report_inputs, train_inputs, train_params
+from helioflow.workflow import (
+    efficiency_metrics,
+    models,
+    parse_model,
+    report_inputs,
+    train_inputs,
+    train_params,
+)
 
 
 @pytest.fixture

@@ -17,10 +17,10 @@ from helioflow.workflow import (
     import_paint_inputs,
     import_paint_params,
     name_pattern,
-    report_inputs,
     paint_datasets,
     paint_heliostat_params,
     paint_heliostats,
+    report_inputs,
 )
 
 REPO = Path(__file__).resolve().parents[2]

@@ -47,7 +47,7 @@ def _scheduled(proc: subprocess.CompletedProcess) -> set[str]:
     """Output files of the jobs a dry run would execute."""
     assert proc.returncode == 0, proc.stderr
     text = proc.stdout + proc.stderr
-    return {f for line in re.findall(r"^\s+output: (.+)$", text, re.M) for f in line.split(", ")}
+    return {f for line in re.findall(r"^\s+output: (.+)$", text, re.MULTILINE) for f in line.split(", ")}
 
 
 def _dry_run(workdir: Path, config: dict, name: str) -> set[str]:
@@ -154,6 +154,6 @@ def test_lint_reports_only_the_accepted_lints(tmp_path):
     proc = snakemake(workdir, "--lint")
     text = proc.stdout + proc.stderr
     assert "Traceback" not in text and "Error" not in text, text
-    lints = set(re.findall(r"^\s+\* (.+?):$", text, re.M))
+    lints = set(re.findall(r"^\s+\* (.+?):$", text, re.MULTILINE))
     assert proc.returncode == 0 or lints, text  # a non-zero exit must come with parsed lints
     assert lints <= ACCEPTED_LINTS, text

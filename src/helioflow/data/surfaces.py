@@ -22,8 +22,8 @@ import numpy as np
 import torch
 
 from ..config import HeliostatSpec
-from ..physics.heliostat import TRACKING_PARAMETERS, Heliostat, ideal_heliostat, without_planes
 from ..errors import DataError
+from ..physics.heliostat import TRACKING_PARAMETERS, Heliostat, ideal_heliostat, without_planes
 from .hdf5 import read_arrays, write_arrays
 
 SCHEMA = "helioflow.heliostat/1"
@@ -47,7 +47,7 @@ def true_heliostat(spec: HeliostatSpec) -> Heliostat:
     canting = rng.normal(0.0, spec.canting_error_mrad * 1e-3, (n_facets, 2))
     if n_facets > 1:
         canting = canting - canting.mean(axis=0)
-    t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
+    t = lambda a: torch.as_tensor(a, dtype=torch.float64)
     return replace(ideal, control_heights=without_planes(t(heights)), canting_error=t(canting),
                    tracking_error=t(tracking))
 
@@ -86,7 +86,7 @@ def read_heliostat(path: str | os.PathLike) -> Heliostat:
     for key in ("mount", "facet_focal_length_m"):
         if key not in attrs:
             raise DataError(f"{path}: attribute {key!r} is missing; expected a heliostat geometry file from `surfaces`")
-    t = lambda k, scale=1.0: torch.as_tensor(arrays[k] * scale, dtype=torch.float64)  # noqa: E731
+    t = lambda k, scale=1.0: torch.as_tensor(arrays[k] * scale, dtype=torch.float64)
     focal = attrs["facet_focal_length_m"]
     return Heliostat(
         position=t("position_m"),

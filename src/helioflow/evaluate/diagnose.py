@@ -29,9 +29,17 @@ from torch import Tensor
 
 from ..data.hdf5 import read_dataset
 from ..data.surfaces import read_heliostat
+from ..models.physics_fit import (
+    FitResult,
+    FitSettings,
+    Measurements,
+    Scene,
+    dataset_scene,
+    fit_effects,
+    normalised,
+)
 from ..physics.effects import FIT, REGISTRY
 from ..physics.target import centroid
-from ..models.physics_fit import FitResult, FitSettings, Measurements, Scene, dataset_scene, fit_effects, normalised
 
 log = logging.getLogger(__name__)
 
@@ -251,7 +259,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     train_index = ds.indices("train")
     heldout_index = np.concatenate((ds.indices("interpolation"), ds.indices("extrapolation")))
     scale = float(ds.images[train_index].max())
-    pick = lambda index, n: index[np.linspace(0, len(index) - 1, min(n, len(index))).round().astype(int)]  # noqa: E731
+    pick = lambda index, n: index[np.linspace(0, len(index) - 1, min(n, len(index))).round().astype(int)]
     heliostat = read_heliostat(heliostat_path).ideal().to("cpu")
     shape = tuple(ds.images.shape[1:])
     fit_scene = dataset_scene(heliostat, ds.attrs, shape, settings["cells_per_side"], settings["fit_rays"], True)

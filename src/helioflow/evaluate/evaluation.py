@@ -151,7 +151,7 @@ def evaluate_model(model_path: str | os.PathLike, dataset_path: str | os.PathLik
     for split in SPLITS:
         idx = ds.indices(split)
         entry = {key: (_mean(per_image[key][idx]) if len(idx) else None) for key in METRICS}
-        entry["n"] = int(len(idx))
+        entry["n"] = len(idx)
         result["splits"][split] = entry
     result.update({
         "model": str(model_path),

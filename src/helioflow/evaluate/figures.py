@@ -8,10 +8,10 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from ..data.hdf5 import read_dataset  # noqa: E402
+from ..data.hdf5 import read_dataset
 
 
 def save_figure(fig, path: str | os.PathLike) -> None:

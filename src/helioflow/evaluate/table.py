@@ -35,10 +35,10 @@ def _load(path) -> dict:
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
         for key in ("network", "dataset", "controllable", "splits"):
-            data[key]  # noqa: B018 - presence check
+            data[key]
         for split in SPLITS:
             for key in ("psnr", "ssim", "n"):
-                data["splits"][split][key]  # noqa: B018
+                data["splits"][split][key]
     except OSError as exc:
         raise DataError(f"{path}: cannot read metrics file: {exc}") from None
     except (json.JSONDecodeError, KeyError, TypeError) as exc:

@@ -179,9 +179,9 @@ def resolve(effects: dict, heliostat: Heliostat, dni: float) -> Physics:
         kind = att.get("model", "vittitoe_biggs_clear")
         if kind == "constant":
             value = float(att.get("transmittance", 1.0))
-            transmittance = lambda r: torch.full_like(r, value)  # noqa: E731
+            transmittance = lambda r: torch.full_like(r, value)
         else:
-            transmittance = lambda r: vittitoe_biggs(r, hazy=kind.endswith("hazy"))  # noqa: E731
+            transmittance = lambda r: vittitoe_biggs(r, hazy=kind.endswith("hazy"))
     h = heliostat
     if "tracking" in effects:
         error = h.tracking_error.clone()

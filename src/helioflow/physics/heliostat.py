@@ -69,7 +69,7 @@ class Heliostat:
     def n_facets(self) -> int:
         return self.facet_translation.shape[0]
 
-    def ideal(self) -> "Heliostat":
+    def ideal(self) -> Heliostat:
         """The same heliostat with no deformation, canting or tracking error."""
         return replace(
             self,
@@ -78,7 +78,7 @@ class Heliostat:
             tracking_error=torch.zeros_like(self.tracking_error),
         )
 
-    def to(self, device, dtype=torch.float32) -> "Heliostat":
+    def to(self, device, dtype=torch.float32) -> Heliostat:
         fields = {k: v.to(device=device, dtype=dtype) for k, v in vars(self).items() if isinstance(v, Tensor)}
         return replace(self, **fields)
 
@@ -141,7 +141,7 @@ def ideal_heliostat(
     """
     translation, size = facet_layout(rows, cols, width, height, gap)
     n = len(translation)
-    t = lambda a: torch.as_tensor(a, dtype=dtype)  # noqa: E731
+    t = lambda a: torch.as_tensor(a, dtype=dtype)
     return Heliostat(
         position=t(position),
         mount=mount,

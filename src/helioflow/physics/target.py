@@ -29,7 +29,7 @@ class Target:
     resolution: tuple[int, int] = (64, 64)
 
     @staticmethod
-    def facing(center, towards, width: float, height: float, resolution=(64, 64), dtype=torch.float32) -> "Target":
+    def facing(center, towards, width: float, height: float, resolution=(64, 64), dtype=torch.float32) -> Target:
         """A target at `center` (3,) m whose normal points at the ENU point `towards` (3,) m."""
         c = torch.as_tensor(center, dtype=dtype)
         return Target(c, normalize(torch.as_tensor(towards, dtype=dtype) - c), width, height, tuple(resolution))
