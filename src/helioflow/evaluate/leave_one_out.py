@@ -77,8 +77,13 @@ def leave_one_out(datasets: list[str], models: dict[str, list[str]], metrics: di
             titled with PSNR and misplaced flux; images in units of the dataset's maximum.
 
     Returns:
-        The CSV's rows as dicts (numbers as floats).
+        The CSV's rows as dicts (numbers as floats); networks in the registry's order (baseline
+        first, physics models last), whatever order the config lists them in.
     """
+    from ..models.registry import NETWORKS
+
+    order = list(NETWORKS)
+    models = {n: models[n] for n in sorted(models, key=lambda n: order.index(n) if n in order else len(order))}
     rows, panels = [], []
     for k, path in enumerate(datasets):
         ds = read_dataset(path)
