@@ -13,7 +13,7 @@ from helioflow.physics.heliostat import ideal_heliostat, without_planes
 from helioflow.physics.target import Target
 
 BUIE = {"kind": "buie", "csr": 0.1}
-SETTINGS = FitSettings(steps=100, lr=0.1, rounds=2, search_iterations=12)
+SETTINGS = FitSettings(steps=100, rounds=2, search_iterations=12)
 
 
 def true_heliostat() -> "Heliostat":  # noqa: F821
@@ -35,9 +35,11 @@ def sun_grid() -> tuple[torch.Tensor, torch.Tensor]:
 
 def diagnosis(world: dict, model: dict, noise: float = 0.0) -> Diagnosis:
     """World images traced with the true heliostat (plus Gaussian noise, a fraction of the
-    dataset's peak); the model traces the design (ideal) one."""
+    dataset's peak); the model traces the design (ideal) one. The 4 m target holds the 2 m
+    heliostat's whole spot, as a calibration target does: a spot cut by the image edge would
+    change its shape as it moves."""
     h = true_heliostat()
-    target = Target(torch.tensor([0.0, 0.0, 20.0]), torch.tensor([0.0, 1.0, 0.0]), 2.0, 2.0, (32, 32))
+    target = Target(torch.tensor([0.0, 0.0, 20.0]), torch.tensor([0.0, 1.0, 0.0]), 4.0, 4.0, (32, 32))
     az, el = sun_grid()
     with torch.no_grad():
         images = Scene(h, target, 1000.0, cells_per_side=8).simulate(world, {}, az, el)
@@ -73,15 +75,17 @@ def test_a_hidden_effect_is_ranked_first_and_fitting_it_halves_the_heldout_error
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="known limitation: each candidate is fitted alone, and the surface "
-                   "(25 control heights per facet) absorbs most of two missing effects at once (here 77 % vs 29 % "
-                   "for tracking and canting); needs joint or stepwise attribution")
 def test_two_hidden_effects_take_the_top_two_places():
-    """Tracking and canting: one moves the whole spot, the other the facets' images apart."""
+    """Tracking and canting: one moves the whole spot, the other the facets' images apart. Fitted
+    alone, the flexible surface mimics both in part and wins; stepwise selection drops it once
+    both are in, and adding the two cuts the held-out error by at least half."""
     world = {"sunshape": BUIE, "tracking": {"axis2_offset_mrad": 2.5}, "canting": {}}
-    _, _, ranking, _ = diagnosis(world, {"sunshape": BUIE}).rank()
-    assert {r["effect"] for r in ranking[:2]} == {"canting", "tracking"}, [(r["effect"], r["relative_reduction"])
-                                                                        for r in ranking]
+    before, _, ranking, _ = diagnosis(world, {"sunshape": BUIE}).rank()
+    summary = [(r["effect"], round(r["relative_reduction"], 3), r["meaningful"]) for r in ranking]
+    assert {r["effect"] for r in ranking[:2]} == {"canting", "tracking"}, summary
+    assert ranking[0]["meaningful"] and ranking[1]["meaningful"], summary
+    assert ranking[1]["added_to"] == [ranking[0]["effect"]]
+    assert ranking[1]["heldout_error_after"] <= 0.5 * before, summary
 
 
 @pytest.mark.slow

@@ -68,7 +68,7 @@ def test_adam_recovers_tracking_errors():
     truth = torch.tensor([1.5, -1.0, 0.5, 0.8, -0.7])
     data = measured(s, {"sunshape": BUIE, "tracking": {}}, {"tracking": truth}, n=24)
     effects = {"sunshape": BUIE, "tracking": {f"{n}_mrad": "fit" for n in TRACKING_PARAMETERS}}
-    result = fit_effects(s, effects, data, FitSettings(steps=200, lr=0.1))
+    result = fit_effects(s, effects, data, FitSettings(steps=200))
     assert torch.allclose(result.tensors["tracking"], truth, atol=0.2), result.tensors["tracking"]
 
 

@@ -4,8 +4,13 @@
    every measured image; residual signatures against sun position are measured (`signatures`).
 2. Attribution: every registry effect the model lacks is added with its parameters marked
    "fit", fitted on the train split, and scored on the held-out splits (interpolation and
-   extrapolation together). Effects are ranked by the relative reduction of the held-out error;
-   pure scale effects (unidentifiable on images compared by shape) are listed after the others.
+   extrapolation together). With one effect missing, the one that cuts the held-out error most
+   is it; with several, an effect that mimics them all in part (the flexible surface) can win
+   alone. So the identifiable candidates are chosen by stepwise selection (`stepwise`): forward,
+   add the candidate that cuts the held-out error of the model plus the effects chosen so far
+   most, while that cut is meaningful; backward, after each addition, drop a chosen effect that
+   the others have made unnecessary. The chosen effects lead the ranking; pure scale effects
+   (unidentifiable on images compared by shape) are listed after the others.
 3. A plain-language verdict names the top effect with its signature.
 
 The error measure is the misplaced flux fraction: half the L1 distance between the predicted and
@@ -81,9 +86,10 @@ SIGNATURE_TEXT = {
 }
 
 
-def misplaced_flux(pred: Tensor, meas: Tensor) -> Tensor:
-    """(N, H, W) predicted and measured images -> (N,) misplaced flux fraction (see module doc)."""
-    p = normalised(pred.double(), "shape", 1.0)
+def misplaced_flux(pred: Tensor, meas: Tensor, lost: Tensor | None = None) -> Tensor:
+    """(N, H, W) predicted and measured images -> (N,) misplaced flux fraction (see module doc);
+    `lost` (N,): predicted flux that missed the image (Scene.simulate), misplaced too."""
+    p = normalised(pred.double(), "shape", 1.0, None if lost is None else lost.double())
     m = normalised(meas.double(), "shape", 1.0)
     return 0.5 * (p - m).abs().mean((-2, -1))
 
@@ -138,9 +144,9 @@ class Diagnosis:
         """(mean held-out misplaced flux, the fit) of an effect list fitted on the train split."""
         result = fit_effects(self.scene, effects, self.train, self.settings)
         with torch.no_grad():
-            pred = self.scene.simulate(result.effects, result.tensors, self.heldout.azimuth_deg,
-                                       self.heldout.elevation_deg)
-        return float(misplaced_flux(pred, self.heldout.images).mean()), result
+            pred, lost = self.scene.simulate(result.effects, result.tensors, self.heldout.azimuth_deg,
+                                             self.heldout.elevation_deg, with_lost=True)
+        return float(misplaced_flux(pred, self.heldout.images, lost).mean()), result
 
     def candidates(self) -> tuple[list[str], list[dict]]:
         """(effects to try, not tested with reasons) for this model and heliostat."""
@@ -157,22 +163,77 @@ class Diagnosis:
         return tried, skipped
 
     def rank(self) -> tuple[float, FitResult, list[dict], list[dict]]:
-        """(held-out error of the model, the model's fit, ranking best first, effects not tested)."""
-        before, model = self.heldout_error(self.effects)
+        """(held-out error of the model, the model's fit, ranking best first, effects not tested).
+
+        The ranking comes from stepwise selection over the identifiable candidates (module doc):
+        the selected effects first, in the order of a forward path (each entry's before/after is
+        the held-out error without and with it, the effects above it included), then the rest by
+        what each adds to the model plus the selected ones, the unidentifiable scales last. Every
+        entry also carries `reduction_alone`: the cut when it is the only effect added."""
         tried, skipped = self.candidates()
+        scores: dict[frozenset, tuple[float, FitResult]] = {}
+
+        def score(names) -> float:
+            key = frozenset(names)
+            if key not in scores:
+                scores[key] = self.heldout_error({**self.effects, **{n: dict(CANDIDATES[n]) for n in names}})
+                log.info("model + %s: held-out error %.4f", "+".join(sorted(key)) or "nothing", scores[key][0])
+            return scores[key][0]
+
+        before = score(())
+        alone = {n: 1.0 - score([n]) / max(before, 1e-30) for n in tried}
+        identifiable = [n for n in tried if REGISTRY[n].identifiable]
+        selected = sorted(stepwise(identifiable, score), key=lambda n: -alone[n])
         ranking = []
-        for name in tried:
-            after, fit = self.heldout_error({**self.effects, name: dict(CANDIDATES[name])})
-            own = {k.split(".", 1)[1]: v for k, v in fit.fitted_values().items() if k.startswith(name + ".")}
-            ranking.append({"effect": name, "fitted": _summarised(own), "heldout_error_before": before,
-                            "heldout_error_after": after, "relative_reduction": 1.0 - after / max(before, 1e-30),
-                            "identifiable": REGISTRY[name].identifiable})
-            log.info("%s: held-out error %.4f -> %.4f", name, before, after)
-        ranking.sort(key=lambda r: (not r["identifiable"], -r["relative_reduction"]))
+        for k, name in enumerate(selected):
+            ranking.append(self._entry(name, selected[:k], score, scores, meaningful=True))
+        rest = [self._entry(n, selected, score, scores, meaningful=False) for n in tried if n not in selected]
+        rest.sort(key=lambda r: (not r["identifiable"], -r["relative_reduction"]))
+        ranking += rest
         for r in ranking:
-            r["meaningful"] = bool(r["identifiable"] and r["relative_reduction"] >= THRESHOLD
-                                   and r["heldout_error_before"] - r["heldout_error_after"] >= ABSOLUTE_FLOOR)
-        return before, model, ranking, skipped
+            r["reduction_alone"] = alone[r["effect"]]
+        return before, scores[frozenset()][1], ranking, skipped
+
+    def _entry(self, name: str, base: list[str], score, scores: dict, meaningful: bool) -> dict:
+        """One ranking entry: `name` added to the model plus the effects `base`, fitted and scored."""
+        before, after = score(base), score([*base, name])
+        fit = scores[frozenset([*base, name])][1]
+        own = {k.split(".", 1)[1]: v for k, v in fit.fitted_values().items() if k.startswith(name + ".")}
+        return {"effect": name, "fitted": _summarised(own), "added_to": list(base), "heldout_error_before": before,
+                "heldout_error_after": after, "relative_reduction": 1.0 - after / max(before, 1e-30),
+                "identifiable": REGISTRY[name].identifiable, "meaningful": meaningful}
+
+
+def is_meaningful(before: float, after: float) -> bool:
+    """Does going from held-out error `before` to `after` count as a finding (module doc)?"""
+    return after <= (1.0 - THRESHOLD) * before and before - after >= ABSOLUTE_FLOOR
+
+
+def stepwise(names: list[str], score) -> list[str]:
+    """Stepwise selection of the effects that the measurements need, in the order added.
+
+    Forward: add the candidate whose joint fit with the effects selected so far has the lowest
+    held-out error, while that cut is meaningful. Backward, after each addition: drop an earlier
+    effect whose removal no longer costs a meaningful error (the newcomer explains what it
+    explained: a flexible surface that absorbed part of a tracking error is dropped once tracking
+    is in). Fitting one candidate at a time cannot do this: with two effects missing, the one that
+    mimics both partly wins alone. `score(names)` is the held-out error of the model plus `names`.
+    """
+    selected: list[str] = []
+    for _ in range(2 * len(names)):  # each effect can enter and leave; bounds a (rare) cycle
+        trials = {n: score([*selected, n]) for n in names if n not in selected}
+        best = min(trials, key=trials.get, default=None)
+        if best is None or not is_meaningful(score(selected), trials[best]):
+            break
+        selected.append(best)
+        while len(selected) >= 2:
+            full = score(selected)
+            without = {n: score([m for m in selected if m != n]) for n in selected[:-1]}
+            weakest = min(without, key=without.get)
+            if is_meaningful(without[weakest], full):
+                break
+            selected.remove(weakest)
+    return selected
 
 
 def _summarised(values: dict) -> dict:
@@ -206,7 +267,8 @@ def verdict(ranking: list[dict], summary: dict) -> str:
             f"(misplaced flux {top['heldout_error_before']:.3f} -> {top['heldout_error_after']:.3f}).")
     if len(meaningful) > 1:
         others = ", ".join(f"{r['effect'].replace('_', ' ')} ({r['relative_reduction']:.0%})" for r in meaningful[1:])
-        text += f" Also missing, each fitted alone: {others}. Add the first, rerun, and look again."
+        text += (f" Also missing, each added to the effects before it: {others}. Add the first, rerun, "
+                 "and look again.")
     return text
 
 
@@ -251,7 +313,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
 
     Args:
         effects: the model's effect list for this dataset.
-        settings: fit_images, heldout_images, fit_steps, rounds, cells_per_side, fit_rays, lr.
+        settings: fit_images, heldout_images, fit_steps, rounds, cells_per_side, fit_rays.
     """
     from .diagnosis_figures import plot_diagnosis
 
@@ -263,13 +325,15 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     heliostat = read_heliostat(heliostat_path).ideal().to("cpu")
     shape = tuple(ds.images.shape[1:])
     fit_scene = dataset_scene(heliostat, ds.attrs, shape, settings["cells_per_side"], settings["fit_rays"], True)
-    fit = FitSettings(steps=settings["fit_steps"], rounds=settings["rounds"], lr=settings["lr"])
+    fit = FitSettings(steps=settings["fit_steps"], rounds=settings["rounds"])
     diagnosis = Diagnosis(fit_scene, effects, _measurements(ds, pick(train_index, settings["fit_images"]), scale),
                           _measurements(ds, pick(heldout_index, settings["heldout_images"]), scale), fit)
     before, model, ranking, skipped = diagnosis.rank()
     everything = _measurements(ds, np.arange(len(ds.images)), scale)
     with torch.no_grad():
-        pred = fit_scene.simulate(model.effects, model.tensors, everything.azimuth_deg, everything.elevation_deg) / scale
+        pred, lost = fit_scene.simulate(model.effects, model.tensors, everything.azimuth_deg, everything.elevation_deg,
+                                        with_lost=True)
+        pred, lost = pred / scale, lost / scale
     slant = float(np.linalg.norm(np.subtract(ds.attrs["target_center_m"], heliostat.position.numpy())))
     sig = signatures(fit_scene, pred, everything.images, slant)
     summary = summarise(sig)
@@ -291,7 +355,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
         "verdict": verdict(ranking, summary),
         "ledger": ledger,
     }
-    error = misplaced_flux(pred, everything.images).numpy()
+    error = misplaced_flux(pred, everything.images, lost).numpy()
     plot_diagnosis(result, ds, pred.numpy(), everything.images.numpy(), error, figures)
     tmp = Path(str(output_json) + ".tmp")
     tmp.write_text(json.dumps(result, indent=1))

@@ -42,8 +42,7 @@ class PhysicsConfig:
         heliostat_path: the heliostat file whose design (ideal) geometry is traced.
         aim_point_m, target_normal, target_size_m: the target (m), from the dataset's attributes.
         dni_w_m2: direct normal irradiance (W/m^2), from the dataset's attributes.
-        fit_steps: Adam steps per fitting round for heliostat tensors.
-        lr: Adam learning rate (mrad / mm per step at the start).
+        fit_steps: traces with gradient (L-BFGS evaluations) per fitting round for heliostat tensors.
         rounds: alternations of spread-scalar search and tensor descent.
         fit_images: train images the fit uses (evenly spread over the train split; all if fewer).
         cells_per_side: surface cells per facet side of the trace (fit and prediction).
@@ -62,7 +61,6 @@ class PhysicsConfig:
     target_size_m: tuple[float, float] = (2.0, 2.0)
     dni_w_m2: float = 1000.0
     fit_steps: int = 150
-    lr: float = 0.05
     rounds: int = 2
     fit_images: int = 32
     cells_per_side: int = 16
@@ -125,7 +123,7 @@ class RaytraceModel(SpotModel):
         index = torch.linspace(0, n - 1, min(n, self.config.fit_images)).round().long()
         measured = Measurements(data.images[index], data.azimuth_deg[index], data.elevation_deg[index], data.scale)
         c = self.config
-        settings = FitSettings(steps=c.fit_steps, lr=c.lr, rounds=c.rounds,
+        settings = FitSettings(steps=c.fit_steps, rounds=c.rounds,
                                loss="shape" if c.per_image_normalised else "absolute")
         self.fitted = fit_effects(self.scene(fitting=True), self.effects_to_fit(self.heliostat), measured, settings,
                                   progress=True, label=f"fit {self.name}")

@@ -138,6 +138,21 @@ def trace(
     return torch.cat(images) / target.pixel_area
 
 
+def launched_power(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: Tensor, optics: Optics, *,
+                   cells_per_side: int = 32, aim_point: Tensor | None = None) -> Tensor:
+    """(S,) power (W) that the heliostat reflects towards the target plane for sun positions
+    (S,) rad: the cells' power whose central ray meets the plane, wherever on it. What a trace's
+    image holds of it is what lands inside the image; the rest is lost beside it.
+    """
+    dtype, device = heliostat.facet_size.dtype, heliostat.facet_size.device
+    aim = target.center.to(dtype=dtype, device=device) if aim_point is None else aim_point
+    sun = sun_vector(azimuth.to(dtype=dtype, device=device), elevation.to(dtype=dtype, device=device))
+    c = _project(heliostat, sample_surface(heliostat, cells_per_side), sun, target, aim, optics)
+    towards = c.along[:, :, 0, 0]
+    meets = (c.offset[:, :, 0] / towards > 0) & (towards < 0)
+    return torch.where(meets, c.power, 0.0).sum(-1)
+
+
 def _sun_chunk(heliostats: Sequence[Heliostat], cells_per_side: int) -> int:
     """Sun positions per batch so that the (S, P, 25) coefficient tensors stay below ~64 MB."""
     points = heliostats[0].n_facets * cells_per_side**2
