@@ -29,6 +29,12 @@ def _spec(args, params) -> dict:
     return params(workflow.expand_config(load_config(args.config)), args.name)
 
 
+def cmd_recovery(args) -> None:
+    from .evaluate.recovery import recovery
+
+    print(json.dumps(recovery(args.model, args.heliostat, args.dataset), indent=1))
+
+
 def cmd_surfaces(args) -> None:
     from .data.surfaces import true_heliostat, write_heliostat
 
@@ -276,6 +282,12 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--csv", required=True, help="leave_one_out/<dataset>.csv: per held-out image and network")
     p.add_argument("--figure", required=True, help="PNG: measured and predicted held-out images")
     p.set_defaults(func=cmd_leave_one_out)
+
+    p = sub.add_parser("recovery", help="what a fitted drt model recovered of a synthetic heliostat's true errors")
+    p.add_argument("--model", required=True, help="models/<dataset>/drt.pt")
+    p.add_argument("--heliostat", required=True, help="surfaces/<heliostat>.h5 the dataset was traced from")
+    p.add_argument("--dataset", required=True, help="datasets/<dataset>.h5")
+    p.set_defaults(func=cmd_recovery)
 
     p = sub.add_parser("report", help="the self-contained HTML report of an experiment")
     p.add_argument("--inputs", required=True,

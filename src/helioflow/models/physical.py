@@ -50,6 +50,9 @@ class PhysicsConfig:
             attributes; a dataset traced with bilinear rays is fitted with `fit_rays` rays per
             image (faster than kernel splatting for many facets) and predicted with its rays.
         fit_rays: rays per image of a bilinear fit.
+        coarse_blur_px: the first descents compare images blurred by a Gaussian of this std
+            (pixels), then half of it, ..., then the sharp ones (physics_fit.blur_levels);
+            0 = sharp only.
         per_image_normalised: the dataset's images are each divided by their own peak (from its
             attributes): fit by shape, predict peak-normalised images (module docstring).
     """
@@ -66,6 +69,7 @@ class PhysicsConfig:
     cells_per_side: int = 16
     dataset_trace: dict | None = None
     fit_rays: int = 100_000
+    coarse_blur_px: float = 0.0
     per_image_normalised: bool = False
 
     def __post_init__(self):
@@ -123,7 +127,7 @@ class RaytraceModel(SpotModel):
         index = torch.linspace(0, n - 1, min(n, self.config.fit_images)).round().long()
         measured = Measurements(data.images[index], data.azimuth_deg[index], data.elevation_deg[index], data.scale)
         c = self.config
-        settings = FitSettings(steps=c.fit_steps, rounds=c.rounds,
+        settings = FitSettings(steps=c.fit_steps, rounds=c.rounds, coarse_blur_px=c.coarse_blur_px,
                                loss="shape" if c.per_image_normalised else "absolute")
         self.fitted = fit_effects(self.scene(fitting=True), self.effects_to_fit(self.heliostat), measured, settings,
                                   progress=True, label=f"fit {self.name}")

@@ -1,0 +1,71 @@
+"""What a fitted physics model (`drt`) recovered of a synthetic heliostat's true errors.
+
+Compares the model file's fitted tensors with the heliostat file the dataset was traced from
+(`surfaces/<heliostat>.h5`) and, for the slope error, with the dataset's world effects:
+
+- tracking: each of the five parameters (mrad) and the largest error;
+- pointing: the angle (mrad) between the true and the fitted mirror normal at the dataset's sun
+  positions, RMS and largest: what the images determine when the five parameters are not
+  separable (one azimuth scan points the mirror alike for several combinations);
+- surface: RMS error of the control heights over their RMS amplitude, and their correlation;
+- canting (several facets): RMS error and RMS of the true tilts (mrad);
+- slope error: fitted and true sigma (mrad).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+
+import numpy as np
+import torch
+
+from ..data.hdf5 import read_dataset
+from ..data.surfaces import read_heliostat
+from ..errors import DataError
+from ..physics.geometry import sun_vector
+from ..physics.heliostat import orientation
+from ..models.registry import load_model
+
+
+def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, dataset_path: str | os.PathLike) -> dict:
+    """The comparison described in the module docstring, as a JSON-able dict."""
+    model, info = load_model(model_path)
+    tensors = getattr(getattr(model, "fitted", None), "tensors", None)
+    if not tensors:
+        raise DataError(f"{model_path}: a {info['network']} model has no fitted heliostat tensors to compare")
+    true = read_heliostat(heliostat_path).to("cpu", torch.float64)
+    ds = read_dataset(dataset_path)
+    out: dict = {}
+    if "tracking" in tensors:
+        fitted = tensors["tracking"].double()
+        truth = true.tracking_error * 1e3
+        out["tracking_mrad"] = {"fitted": _rounded(fitted), "true": _rounded(truth),
+                                "max_error": round(float((fitted - truth).abs().max()), 4)}
+        sun = sun_vector(torch.deg2rad(torch.as_tensor(ds.azimuth_deg, dtype=torch.float64)),
+                         torch.deg2rad(torch.as_tensor(ds.elevation_deg, dtype=torch.float64)))
+        aim = torch.as_tensor(ds.attrs["target_center_m"], dtype=torch.float64)
+        n_true = orientation(true, sun, aim)[..., 2]
+        n_fit = orientation(replace(true, tracking_error=fitted * 1e-3), sun, aim)[..., 2]
+        angle = torch.linalg.cross(n_true, n_fit).norm(dim=-1).asin() * 1e3
+        out["pointing_error_mrad"] = {"rms": round(float(angle.pow(2).mean().sqrt()), 4),
+                                      "max": round(float(angle.max()), 4)}
+    if "surface" in tensors:
+        fitted, truth = tensors["surface"].double().flatten(), (true.control_heights * 1e3).flatten()
+        amplitude = float(truth.pow(2).mean().sqrt())
+        out["surface_mm"] = {"rms_true": round(amplitude, 4),
+                             "rms_error_over_rms_true": round(float((fitted - truth).pow(2).mean().sqrt()) / amplitude, 4),
+                             "correlation": round(float(np.corrcoef(fitted.numpy(), truth.numpy())[0, 1]), 4)}
+    if "canting" in tensors:
+        fitted, truth = tensors["canting"].double(), true.canting_error * 1e3
+        out["canting_mrad"] = {"rms_true": round(float(truth.pow(2).mean().sqrt()), 4),
+                               "rms_error": round(float((fitted - truth).pow(2).mean().sqrt()), 4)}
+    slope = (model.fitted.effects.get("slope_error") or {}).get("sigma_mrad")
+    if slope is not None:
+        world = (ds.attrs.get("world_effects") or {}).get("slope_error") or {}
+        out["slope_error_mrad"] = {"fitted": slope, "true": world.get("sigma_mrad", 0.0)}
+    return out
+
+
+def _rounded(values: torch.Tensor) -> list[float]:
+    return [round(float(v), 4) for v in values]

@@ -1,0 +1,72 @@
+"""What a fitted drt model recovered of a synthetic heliostat: a model holding the true errors
+recovers them exactly; a known offset shows up as that error; a network has nothing to compare."""
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from helioflow.config import HeliostatSpec, load_config
+from helioflow.data.surfaces import read_heliostat, true_heliostat, write_heliostat
+from helioflow.data.synthetic import trace_dataset
+from helioflow.errors import DataError
+from helioflow.evaluate.recovery import recovery
+from helioflow.models.nearest import Nearest, NearestConfig
+from helioflow.models.physical import DrtModel, PhysicsConfig
+from helioflow.models.physics_fit import FitResult
+from helioflow.models.registry import save_model
+from helioflow.workflow import surfaces_params, trace_params
+
+TINY = Path(__file__).resolve().parents[1] / "workflow" / "tiny_config.yaml"
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """(heliostat file, dataset file) of the tiny config's heliostat `small` and dataset `scan`."""
+    config = load_config(TINY)
+    directory = tmp_path_factory.mktemp("recovery")
+    params = surfaces_params(config, "small")
+    spec = HeliostatSpec.from_config(params.pop("name"), params)
+    heliostat = directory / "small.h5"
+    write_heliostat(heliostat, true_heliostat(spec), spec)
+    dataset = directory / "scan.h5"
+    trace_dataset(trace_params(config, "scan"), heliostat, dataset)
+    return heliostat, dataset
+
+
+def _drt_file(path, heliostat_path, tracking_offset_mrad: float):
+    """A drt model file whose fitted tensors are the true ones, tracking parameter 0 offset."""
+    true = read_heliostat(heliostat_path)
+    model = DrtModel(PhysicsConfig(effects={"sunshape": {"kind": "pillbox"}}, heliostat_path=str(heliostat_path)),
+                     (32, 32))
+    model.heliostat = true.ideal().to("cpu")
+    tracking = (true.tracking_error * 1e3).float()
+    tracking[0] += tracking_offset_mrad
+    model.fitted = FitResult({"sunshape": {"kind": "pillbox"}, "slope_error": {"sigma_mrad": 0.7}},
+                             {"tracking": tracking, "surface": (true.control_heights * 1e3).float()})
+    save_model(path, model, "drt", model.config, 1.0, {})
+    return path
+
+
+def test_a_model_holding_the_true_errors_recovers_them_exactly(files, tmp_path):
+    heliostat, dataset = files
+    out = recovery(_drt_file(tmp_path / "drt.pt", heliostat, 0.0), heliostat, dataset)
+    assert out["tracking_mrad"]["max_error"] < 1e-4
+    assert out["pointing_error_mrad"]["max"] < 1e-3
+    assert out["surface_mm"]["rms_error_over_rms_true"] < 1e-4 and out["surface_mm"]["correlation"] > 0.9999
+    assert out["slope_error_mrad"]["fitted"] == 0.7
+
+
+def test_a_tracking_offset_shows_as_that_error_and_a_pointing_error(files, tmp_path):
+    heliostat, dataset = files
+    out = recovery(_drt_file(tmp_path / "drt.pt", heliostat, 0.5), heliostat, dataset)
+    assert out["tracking_mrad"]["max_error"] == pytest.approx(0.5, abs=1e-4)
+    assert 0.05 < out["pointing_error_mrad"]["rms"] <= 0.5 + 1e-6  # a joint offset turns the normal by at most itself
+
+
+def test_a_network_has_no_heliostat_to_compare(files, tmp_path):
+    heliostat, dataset = files
+    path = tmp_path / "nearest.pt"
+    save_model(path, Nearest(NearestConfig(), (32, 32)), "nearest", NearestConfig(), 1.0, {})
+    with pytest.raises(DataError, match="nearest.pt: a nearest model has no fitted heliostat tensors"):
+        recovery(path, heliostat, dataset)
