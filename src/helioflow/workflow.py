@@ -195,7 +195,7 @@ def train_inputs(config: dict, dataset: str, model: str) -> dict:
 
 
 DIAGNOSIS_DEFAULTS = {"fit_images": 24, "heldout_images": 48, "fit_steps": 80, "rounds": 2, "cells_per_side": 16,
-                      "fit_rays": 50_000}
+                      "fit_rays": 50_000, "max_effects": 2}
 
 
 def diagnose_params(config: dict, dataset: str) -> dict:

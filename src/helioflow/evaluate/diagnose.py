@@ -136,8 +136,9 @@ class Diagnosis:
     """One dataset against one model effect list: fits, scores and ranks (see module doc)."""
 
     def __init__(self, scene: Scene, effects: dict, train: Measurements, heldout: Measurements,
-                 settings: FitSettings):
+                 settings: FitSettings, max_effects: int = 2):
         self.scene, self.effects, self.train, self.heldout = scene, effects, train, heldout
+        self.max_effects = max_effects
         self.settings = FitSettings(**{**vars(settings), "loss": "shape"})
 
     def heldout_error(self, effects: dict) -> tuple[float, FitResult]:
@@ -167,9 +168,9 @@ class Diagnosis:
 
         The ranking comes from stepwise selection over the identifiable candidates (module doc):
         the selected effects first, in the order of a forward path (each entry's before/after is
-        the held-out error without and with it, the effects above it included), then the rest by
-        what each adds to the model plus the selected ones, the unidentifiable scales last. Every
-        entry also carries `reduction_alone`: the cut when it is the only effect added."""
+        the held-out error without and with it, the effects above it included), then the rest,
+        each added alone, by that cut, the unidentifiable scales last. Every entry also carries
+        `reduction_alone`: the cut when it is the only effect added."""
         tried, skipped = self.candidates()
         scores: dict[frozenset, tuple[float, FitResult]] = {}
 
@@ -183,11 +184,11 @@ class Diagnosis:
         before = score(())
         alone = {n: 1.0 - score([n]) / max(before, 1e-30) for n in tried}
         identifiable = [n for n in tried if REGISTRY[n].identifiable]
-        selected = sorted(stepwise(identifiable, score), key=lambda n: -alone[n])
+        selected = sorted(stepwise(identifiable, score, self.max_effects), key=lambda n: -alone[n])
         ranking = []
         for k, name in enumerate(selected):
             ranking.append(self._entry(name, selected[:k], score, scores, meaningful=True))
-        rest = [self._entry(n, selected, score, scores, meaningful=False) for n in tried if n not in selected]
+        rest = [self._entry(n, [], score, scores, meaningful=False) for n in tried if n not in selected]
         rest.sort(key=lambda r: (not r["identifiable"], -r["relative_reduction"]))
         ranking += rest
         for r in ranking:
@@ -209,7 +210,7 @@ def is_meaningful(before: float, after: float) -> bool:
     return after <= (1.0 - THRESHOLD) * before and before - after >= ABSOLUTE_FLOOR
 
 
-def stepwise(names: list[str], score) -> list[str]:
+def stepwise(names: list[str], score, max_effects: int = 2) -> list[str]:
     """Stepwise selection of the effects that the measurements need, in the order added.
 
     Forward: add the candidate whose joint fit with the effects selected so far has the lowest
@@ -218,9 +219,13 @@ def stepwise(names: list[str], score) -> list[str]:
     explained: a flexible surface that absorbed part of a tracking error is dropped once tracking
     is in). Fitting one candidate at a time cannot do this: with two effects missing, the one that
     mimics both partly wins alone. `score(names)` is the held-out error of the model plus `names`.
+    At most `max_effects` are selected (each stage fits every remaining candidate jointly with
+    the selected ones: the cost grows with it); the loop names the rest in the next revision.
     """
     selected: list[str] = []
     for _ in range(2 * len(names)):  # each effect can enter and leave; bounds a (rare) cycle
+        if len(selected) >= max_effects:
+            break
         trials = {n: score([*selected, n]) for n in names if n not in selected}
         best = min(trials, key=trials.get, default=None)
         if best is None or not is_meaningful(score(selected), trials[best]):
@@ -313,7 +318,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
 
     Args:
         effects: the model's effect list for this dataset.
-        settings: fit_images, heldout_images, fit_steps, rounds, cells_per_side, fit_rays.
+        settings: fit_images, heldout_images, fit_steps, rounds, cells_per_side, fit_rays, max_effects.
     """
     from .diagnosis_figures import plot_diagnosis
 
@@ -327,7 +332,8 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     fit_scene = dataset_scene(heliostat, ds.attrs, shape, settings["cells_per_side"], settings["fit_rays"], True)
     fit = FitSettings(steps=settings["fit_steps"], rounds=settings["rounds"])
     diagnosis = Diagnosis(fit_scene, effects, _measurements(ds, pick(train_index, settings["fit_images"]), scale),
-                          _measurements(ds, pick(heldout_index, settings["heldout_images"]), scale), fit)
+                          _measurements(ds, pick(heldout_index, settings["heldout_images"]), scale), fit,
+                          settings["max_effects"])
     before, model, ranking, skipped = diagnosis.rank()
     everything = _measurements(ds, np.arange(len(ds.images)), scale)
     with torch.no_grad():

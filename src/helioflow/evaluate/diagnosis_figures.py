@@ -50,7 +50,7 @@ def plot_ranking(result: dict, path) -> None:
     ax.barh(y, [r["heldout_error_after"] for r in ranking],
             color=["tab:green" if r["meaningful"] else "tab:gray" for r in ranking], label="model + effect (fitted)")
     for yi, r in zip(y, ranking):
-        ax.text(r["heldout_error_before"], yi, f" -{r['relative_reduction']:.0%}", va="center", fontsize=8)
+        ax.text(r["heldout_error_before"], yi, f" {-r['relative_reduction'] + 0.0:+.0%}", va="center", fontsize=8)
     ax.set_yticks(y, names, fontsize=8)
     ax.set_xlabel(f"held-out {result['error_measure']['name'].replace('_', ' ')}")
     ax.legend(fontsize=7, loc="lower right")
