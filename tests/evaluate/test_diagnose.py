@@ -33,7 +33,7 @@ def sun_grid() -> tuple[torch.Tensor, torch.Tensor]:
     return az.flatten(), el.flatten()
 
 
-def diagnosis(world: dict, model: dict, noise: float = 0.0) -> Diagnosis:
+def diagnosis(world: dict, model: dict, noise: float = 0.0, max_effects: int = 2) -> Diagnosis:
     """World images traced with the true heliostat (plus Gaussian noise, a fraction of the
     dataset's peak); the model traces the design (ideal) one. The 4 m target holds the 2 m
     heliostat's whole spot, as a calibration target does: a spot cut by the image edge would
@@ -48,7 +48,8 @@ def diagnosis(world: dict, model: dict, noise: float = 0.0) -> Diagnosis:
     held = torch.arange(len(az)) % 3 == 0
     train = Measurements(images[~held] / scale, az[~held], el[~held], scale)
     heldout = Measurements(images[held] / scale, az[held], el[held], scale)
-    return Diagnosis(Scene(h.ideal(), target, 1000.0, cells_per_side=8), model, train, heldout, SETTINGS)
+    return Diagnosis(Scene(h.ideal(), target, 1000.0, cells_per_side=8), model, train, heldout, SETTINGS,
+                     max_effects)
 
 
 CASES = {
@@ -78,9 +79,10 @@ def test_a_hidden_effect_is_ranked_first_and_fitting_it_halves_the_heldout_error
 def test_two_hidden_effects_take_the_top_two_places():
     """Tracking and canting: one moves the whole spot, the other the facets' images apart. Fitted
     alone, the flexible surface mimics both in part and wins; stepwise selection drops it once
-    both are in, and adding the two cuts the held-out error by at least half."""
+    both are in (the selection may hold three for that: surface, tracking, then canting, after
+    which the surface is dropped), and adding the two cuts the held-out error by at least half."""
     world = {"sunshape": BUIE, "tracking": {"axis2_offset_mrad": 2.5}, "canting": {}}
-    before, _, ranking, _ = diagnosis(world, {"sunshape": BUIE}).rank()
+    before, _, ranking, _ = diagnosis(world, {"sunshape": BUIE}, max_effects=3).rank()
     summary = [(r["effect"], round(r["relative_reduction"], 3), r["meaningful"]) for r in ranking]
     assert {r["effect"] for r in ranking[:2]} == {"canting", "tracking"}, summary
     assert ranking[0]["meaningful"] and ranking[1]["meaningful"], summary

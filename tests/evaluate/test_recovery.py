@@ -4,7 +4,6 @@ recovers them exactly; a known offset shows up as that error; a network has noth
 from pathlib import Path
 
 import pytest
-import torch
 
 from helioflow.config import HeliostatSpec, load_config
 from helioflow.data.surfaces import read_heliostat, true_heliostat, write_heliostat

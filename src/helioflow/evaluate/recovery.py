@@ -23,9 +23,9 @@ import torch
 from ..data.hdf5 import read_dataset
 from ..data.surfaces import read_heliostat
 from ..errors import DataError
+from ..models.registry import load_model
 from ..physics.geometry import sun_vector
 from ..physics.heliostat import orientation
-from ..models.registry import load_model
 
 
 def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, dataset_path: str | os.PathLike) -> dict:
