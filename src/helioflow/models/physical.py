@@ -5,7 +5,7 @@ surface, facet canting, tracking errors and slope error fitted too - the paper's
 Both trace the design heliostat (ideal geometry from the heliostat file) onto the dataset's
 target; training is the fit of `physics_fit.fit_effects` on the train split (absolute loss:
 images divided by the dataset's maximum, as the metrics compare them), run once in `prepare`
-(the shared loop then runs no steps). The fit's loss per Adam step is the training curve.
+(the shared loop then runs no steps). The fit's loss per trace is the training curve.
 
 Real images normalised each to its own peak (PAINT, dataset attribute ``per_image_normalised``)
 carry no comparable intensity between images: every image has its own unknown camera gain. Such a

@@ -326,7 +326,8 @@ class _Fitter:
 
         The loss is smooth in the tensors and deterministic (kernel splatting, or bilinear rays
         with the same random numbers at every trace), which is what quasi-Newton steps need: on
-        a fit of 41 parameters L-BFGS reaches a ~100x lower loss than Adam in fewer traces."""
+        the 41-parameter sanity_check fit L-BFGS reaches a 5x lower loss (7 dB) than Adam did,
+        in fewer traces (README, "Physics models")."""
         params = {k: v.clone().requires_grad_(True) for k, v in tensors.items()}
         steps = self.settings.steps
         optimizer = torch.optim.LBFGS(list(params.values()), lr=1.0, max_iter=steps, max_eval=steps, history_size=30,
