@@ -13,7 +13,7 @@ import torch
 
 from helioflow.physics.geometry import normalize, sun_vector
 from helioflow.physics.heliostat import Heliostat, ideal_heliostat
-from helioflow.physics.raytrace import Optics, launched_power, trace
+from helioflow.physics.raytrace import Optics, trace
 from helioflow.physics.reference import reference_trace
 from helioflow.physics.sun import SunShape
 from helioflow.physics.target import Target, centroid
@@ -115,16 +115,16 @@ def test_energy_of_a_curved_deformed_heliostat():
 
 @pytest.mark.parametrize("size", [8.0, 1.5])
 def test_launched_power_is_the_image_power_plus_what_misses_the_image(size):
-    """launched_power counts the reflected power wherever it meets the target plane: on an 8 m
+    """The launched power counts the reflected power wherever it meets the target plane: on an 8 m
     target it equals the image's power (and dni * area * cos(incidence)); on a 1.5 m one that
     cuts the ~2 m spot, the image holds less and the launched power stays the same."""
     h = make_heliostat(2, 2, 1.0, 1.0, 0.02)
     tg = _target(50.0, size, 64)
     az, el = _sun(math.radians(40.0), math.radians(45.0))
     optics = Optics(SunShape("gaussian", sigma_mrad=2.0), dni=900.0)
-    launched = launched_power(h, tg, az, el, optics, cells_per_side=16)
+    image, launched = trace(h, tg, az, el, optics, rays=0, splat="kernel", cells_per_side=16, with_launched=True)
     assert launched.item() == pytest.approx(900.0 * 4.0 * _cos_incidence(h, tg, *az, *el), rel=1e-9)
-    on_image = trace(h, tg, az, el, optics, rays=0, splat="kernel", cells_per_side=16).sum().item() * tg.pixel_area
+    on_image = image.sum().item() * tg.pixel_area
     if size > 2.5:
         assert on_image == pytest.approx(launched.item(), rel=1e-6)
     else:

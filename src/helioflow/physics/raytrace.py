@@ -94,7 +94,8 @@ def trace(
     seed: int = 0,
     chunk_rays: int = 2**19,
     aim_point: Tensor | None = None,
-) -> Tensor:
+    with_launched: bool = False,
+) -> Tensor | tuple[Tensor, Tensor]:
     """Flux images of heliostats on a target, one per sun position.
 
     Args:
@@ -109,10 +110,13 @@ def trace(
         seed: seed of the random pool; the same seed gives identical images.
         chunk_rays: rays (or kernel evaluations) held in memory at once.
         aim_point: (3,) ENU aim point; default the target centre.
+        with_launched: also return the (S,) power (W) reflected towards the target plane: the
+            cells' power whose central ray meets the plane, wherever on it. The image holds what
+            lands inside it; the rest is lost beside it.
 
     Returns:
         (S, H, W) flux density (W/m^2), tent-averaged over pixels, differentiable in the
-        heliostats' tensors.
+        heliostats' tensors (and the launched power (S,) W, with_launched).
     """
     if splat not in SPLATS:
         raise ValueError(f"splat must be one of {SPLATS}, got {splat!r}")
@@ -122,35 +126,27 @@ def trace(
     rows, cols = target.resolution
     sun = sun_vector(azimuth.to(dtype=dtype, device=device), elevation.to(dtype=dtype, device=device))
     generator = torch.Generator(device="cpu").manual_seed(seed)
-    images = []
+    images, launched = [], []
     samples = [sample_surface(h, cells_per_side) for h in heliostats]  # once, not per sun batch
     per_batch = _sun_chunk(heliostats, cells_per_side)
     for start in range(0, len(sun), per_batch):
         s_sun = sun[start : start + per_batch]
         image = torch.zeros(len(s_sun), rows, cols, dtype=dtype, device=device)
+        power = torch.zeros(len(s_sun), dtype=dtype, device=device)
         for heliostat, surface in zip(heliostats, samples):
             coeffs = _project(heliostat, surface, s_sun, target, aim, optics)
+            if with_launched:
+                towards = coeffs.along[:, :, 0, 0]
+                meets = (coeffs.offset[:, :, 0] / towards > 0) & (towards < 0)
+                power = power + torch.where(meets, coeffs.power, 0.0).sum(-1)
             if splat == "bilinear":
                 image = image + _splat_bilinear(coeffs, target, optics, rays, generator, chunk_rays)
             else:
                 image = image + _splat_kernel(coeffs, target, optics, heliostat.n_facets)
         images.append(image)
-    return torch.cat(images) / target.pixel_area
-
-
-def launched_power(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: Tensor, optics: Optics, *,
-                   cells_per_side: int = 32, aim_point: Tensor | None = None) -> Tensor:
-    """(S,) power (W) that the heliostat reflects towards the target plane for sun positions
-    (S,) rad: the cells' power whose central ray meets the plane, wherever on it. What a trace's
-    image holds of it is what lands inside the image; the rest is lost beside it.
-    """
-    dtype, device = heliostat.facet_size.dtype, heliostat.facet_size.device
-    aim = target.center.to(dtype=dtype, device=device) if aim_point is None else aim_point
-    sun = sun_vector(azimuth.to(dtype=dtype, device=device), elevation.to(dtype=dtype, device=device))
-    c = _project(heliostat, sample_surface(heliostat, cells_per_side), sun, target, aim, optics)
-    towards = c.along[:, :, 0, 0]
-    meets = (c.offset[:, :, 0] / towards > 0) & (towards < 0)
-    return torch.where(meets, c.power, 0.0).sum(-1)
+        launched.append(power)
+    flux = torch.cat(images) / target.pixel_area
+    return (flux, torch.cat(launched)) if with_launched else flux
 
 
 def _sun_chunk(heliostats: Sequence[Heliostat], cells_per_side: int) -> int:
