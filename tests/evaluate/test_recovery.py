@@ -33,8 +33,9 @@ def files(tmp_path_factory):
     return heliostat, dataset
 
 
-def _drt_file(path, heliostat_path, tracking_offset_mrad: float):
-    """A drt model file whose fitted tensors are the true ones, tracking parameter 0 offset."""
+def _drt_file(path, heliostat_path, tracking_offset_mrad: float, surface_factor: float = 1.0):
+    """A drt model file whose fitted tensors are the true ones, tracking parameter 0 offset and
+    the control heights scaled by `surface_factor`."""
     true = read_heliostat(heliostat_path)
     model = DrtModel(PhysicsConfig(effects={"sunshape": {"kind": "pillbox"}}, heliostat_path=str(heliostat_path)),
                      (32, 32))
@@ -42,7 +43,7 @@ def _drt_file(path, heliostat_path, tracking_offset_mrad: float):
     tracking = (true.tracking_error * 1e3).float()
     tracking[0] += tracking_offset_mrad
     model.fitted = FitResult({"sunshape": {"kind": "pillbox"}, "slope_error": {"sigma_mrad": 0.7}},
-                             {"tracking": tracking, "surface": (true.control_heights * 1e3).float()})
+                             {"tracking": tracking, "surface": (true.control_heights * 1e3 * surface_factor).float()})
     save_model(path, model, "drt", model.config, 1.0, {})
     return path
 
@@ -61,6 +62,17 @@ def test_a_tracking_offset_shows_as_that_error_and_a_pointing_error(files, tmp_p
     out = recovery(_drt_file(tmp_path / "drt.pt", heliostat, 0.5), heliostat, dataset)
     assert out["tracking_mrad"]["max_error"] == pytest.approx(0.5, abs=1e-4)
     assert 0.05 < out["pointing_error_mrad"]["rms"] <= 0.5 + 1e-6  # a joint offset turns the normal by at most itself
+
+
+@pytest.mark.parametrize("factor", [0.0, 0.5, 2.0])
+def test_a_scaled_surface_misses_the_true_heights_by_the_scale(files, tmp_path, factor):
+    """Heights are linear in the control heights: fitted = factor * true misses by |1 - factor| of
+    the amplitude, on the whole surface and on every facet alike (correlation 1 unless flat)."""
+    heliostat, dataset = files
+    out = recovery(_drt_file(tmp_path / "drt.pt", heliostat, 0.0, factor), heliostat, dataset)["surface_mm"]
+    assert out["rms_error_over_rms_true"] == pytest.approx(abs(1.0 - factor), abs=1e-4)
+    if factor:
+        assert out["correlation"] > 0.9999 and min(out["facet_correlation"]) > 0.9999
 
 
 def test_a_network_has_no_heliostat_to_compare(files, tmp_path):

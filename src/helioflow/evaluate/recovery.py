@@ -7,7 +7,9 @@ Compares the model file's fitted tensors with the heliostat file the dataset was
 - pointing: the angle (mrad) between the true and the fitted mirror normal at the dataset's sun
   positions, RMS and largest: what the images determine when the five parameters are not
   separable (one azimuth scan points the mirror alike for several combinations);
-- surface: RMS error of the control heights over their RMS amplitude, and their correlation;
+- surface: RMS error of the surface heights (the B-spline deformation sampled on a fine grid of
+  equal cells over every facet, so each square metre counts alike) over their RMS amplitude, their
+  correlation, and the correlation per facet (which facets came back);
 - canting (several facets): RMS error and RMS of the true tilts (mrad);
 - slope error: fitted and true sigma (mrad).
 """
@@ -25,7 +27,7 @@ from ..data.surfaces import read_heliostat
 from ..errors import DataError
 from ..models.registry import load_model
 from ..physics.geometry import sun_vector
-from ..physics.heliostat import orientation
+from ..physics.heliostat import bspline_basis, orientation
 
 
 def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, dataset_path: str | os.PathLike) -> dict:
@@ -51,11 +53,11 @@ def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, d
         out["pointing_error_mrad"] = {"rms": round(float(angle.pow(2).mean().sqrt()), 4),
                                       "max": round(float(angle.max()), 4)}
     if "surface" in tensors:
-        fitted, truth = tensors["surface"].double().flatten(), (true.control_heights * 1e3).flatten()
-        amplitude = float(truth.pow(2).mean().sqrt())
-        out["surface_mm"] = {"rms_true": round(amplitude, 4),
-                             "rms_error_over_rms_true": round(float((fitted - truth).pow(2).mean().sqrt()) / amplitude, 4),
-                             "correlation": round(float(np.corrcoef(fitted.numpy(), truth.numpy())[0, 1]), 4)}
+        fitted, truth = surface_heights(tensors["surface"].double()), surface_heights(true.control_heights * 1e3)
+        error, amplitude = float((fitted - truth).pow(2).mean().sqrt()), float(truth.pow(2).mean().sqrt())
+        out["surface_mm"] = {"rms_true": round(amplitude, 4), "rms_error_over_rms_true": round(error / amplitude, 4),
+                             "correlation": _correlation(fitted, truth),
+                             "facet_correlation": [_correlation(f, t) for f, t in zip(fitted, truth)]}
     if "canting" in tensors:
         fitted, truth = tensors["canting"].double(), true.canting_error * 1e3
         out["canting_mrad"] = {"rms_true": round(float(truth.pow(2).mean().sqrt()), 4),
@@ -65,6 +67,18 @@ def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, d
         world = (ds.attrs.get("world_effects") or {}).get("slope_error") or {}
         out["slope_error_mrad"] = {"fitted": slope, "true": world.get("sigma_mrad", 0.0)}
     return out
+
+
+def surface_heights(control_heights_mm: torch.Tensor, samples_per_side: int = 64) -> torch.Tensor:
+    """(F, C, C) control heights (mm) -> (F, G, G) heights (mm) of the deformation at the centres of
+    G x G equal cells of each facet."""
+    basis = torch.as_tensor(bspline_basis((np.arange(samples_per_side) + 0.5) / samples_per_side,
+                                          control_heights_mm.shape[-1])[0], dtype=control_heights_mm.dtype)
+    return torch.einsum("ui,fij,vj->fuv", basis, control_heights_mm, basis)
+
+
+def _correlation(a: torch.Tensor, b: torch.Tensor) -> float:
+    return round(float(np.corrcoef(a.flatten().numpy(), b.flatten().numpy())[0, 1]), 4)
 
 
 def _rounded(values: torch.Tensor) -> list[float]:
