@@ -30,9 +30,12 @@ def _spec(args, params) -> dict:
 
 
 def cmd_recovery(args) -> None:
-    from .evaluate.recovery import recovery
+    from .evaluate.recovery import recovery, write_recovery
 
-    print(json.dumps(recovery(args.model, args.heliostat, args.dataset), indent=1))
+    if args.output is None:
+        print(json.dumps(recovery(args.model, args.heliostat, args.dataset), indent=1))
+    else:
+        write_recovery(args.model, args.heliostat, args.dataset, args.output)
 
 
 def cmd_surfaces(args) -> None:
@@ -287,6 +290,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--model", required=True, help="models/<dataset>/drt.pt")
     p.add_argument("--heliostat", required=True, help="surfaces/<heliostat>.h5 the dataset was traced from")
     p.add_argument("--dataset", required=True, help="datasets/<dataset>.h5")
+    p.add_argument("--output", help="recovery/<dataset>.json (default: print the JSON)")
     p.set_defaults(func=cmd_recovery)
 
     p = sub.add_parser("report", help="the self-contained HTML report of an experiment")

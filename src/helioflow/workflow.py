@@ -230,6 +230,15 @@ def diagnosis_paths(config: dict) -> list[str]:
     return [f"{results_dir(config)}/diagnosis/{d}.json" for d in network_datasets(config)]
 
 
+def recovery_paths(config: dict) -> list[str]:
+    """recovery/<dataset>.json (rule `recovery`: what drt recovered of the true
+    heliostat) of every synthetic dataset the networks are scored on, when `drt` is among them."""
+    if "drt" not in (config.get("networks") or {}):
+        return []
+    paint = set(paint_datasets(config))
+    return [f"{results_dir(config)}/recovery/{d}.json" for d in network_datasets(config) if d not in paint]
+
+
 def report_inputs(config: dict) -> dict[str, list[str]]:
     """Files rule `report` reads, by report section; a section the config leaves out is an empty
     list (the report says "not part of this experiment"). Together they are every final output."""
@@ -245,6 +254,7 @@ def report_inputs(config: dict) -> dict[str, list[str]]:
         "samples": [f"{r}/figures/{d}/{m}_samples.png" for d in datasets for m in networks],
         "psnr": [f"{r}/figures/{d}/{m}_psnr.png" for d in datasets for m in networks],
         "data_efficiency": [f"{r}/figures/data_efficiency.png"] if efficiency else [],
+        "recovery": recovery_paths(config),
         "diagnosis": diagnosis_paths(config),
         "diagnosis_figures": [f"{r}/figures/diagnosis/{d}_{kind}.png" for d in diagnosed
                               for kind in ("signatures", "ranking", "residuals", "ledger")],

@@ -1,10 +1,12 @@
 """What a fitted drt model recovered of a synthetic heliostat: a model holding the true errors
 recovers them exactly; a known offset shows up as that error; a network has nothing to compare."""
 
+import json
 from pathlib import Path
 
 import pytest
 
+from helioflow.cli import main
 from helioflow.config import HeliostatSpec, load_config
 from helioflow.data.surfaces import read_heliostat, true_heliostat, write_heliostat
 from helioflow.data.synthetic import trace_dataset
@@ -73,6 +75,21 @@ def test_a_scaled_surface_misses_the_true_heights_by_the_scale(files, tmp_path, 
     assert out["rms_error_over_rms_true"] == pytest.approx(abs(1.0 - factor), abs=1e-4)
     if factor:
         assert out["correlation"] > 0.9999 and min(out["facet_correlation"]) > 0.9999
+    else:  # a flat surface has no correlation: null in the JSON, not NaN
+        assert out["correlation"] is None and out["facet_correlation"] == [None]
+
+
+def test_the_rule_writes_the_comparison_with_its_inputs_named(files, tmp_path):
+    """Rule `recovery` (helioflow recovery --output): the JSON file, whole, with what it compared."""
+    heliostat, dataset = files
+    model = _drt_file(tmp_path / "drt.pt", heliostat, 0.5)
+    out = tmp_path / "recovery" / "scan.json"
+    assert main(["recovery", "--model", str(model), "--heliostat", str(heliostat), "--dataset", str(dataset),
+                 "--output", str(out)]) == 0
+    written = json.loads(out.read_text())
+    assert written["model"] == str(model) and written["dataset"] == str(dataset)
+    assert written["tracking_mrad"]["max_error"] == pytest.approx(0.5, abs=1e-4)
+    assert [p.name for p in out.parent.iterdir()] == ["scan.json"]  # no temporary left
 
 
 def test_a_network_has_no_heliostat_to_compare(files, tmp_path):

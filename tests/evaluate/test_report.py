@@ -17,11 +17,11 @@ from helioflow.data.hdf5 import CalibrationDataset, write_dataset
 from helioflow.errors import DataError
 from helioflow.evaluate.report import build_report, run_times, write_report
 from helioflow.evaluate.report_html import markdown, nested_tables
-from helioflow.workflow import all_targets, diagnosis_paths, report_inputs
+from helioflow.workflow import all_targets, diagnosis_paths, recovery_paths, report_inputs
 
 TINY = Path(__file__).resolve().parents[1] / "workflow" / "tiny_config.yaml"
 HEADINGS = ("Datasets", "Table 1", "Sample grids", "PSNR against sun position",
-            "Diagnosis: which effect is missing",
+            "What drt recovered of the true heliostats", "Diagnosis: which effect is missing",
             "Error ledger", "Field flux maps", "Leave-one-out on real images", "Run times")
 ABSENT = "Not part of this experiment."
 
@@ -66,6 +66,10 @@ DIAGNOSIS = {
                {"revision": 2, "model_hash": "9876543210fedcba", "model_effects": {"tracking": "fit"},
                 "heldout_error": 0.08}],
 }
+RECOVERY = {"model": "models/scan/drt.pt", "heliostat": "surfaces/small.h5", "dataset": "datasets/scan.h5",
+            "tracking_mrad": {"fitted": [0.1, 0.2], "true": [0.1, 0.25], "max_error": 0.05},
+            "surface_mm": {"rms_true": 0.11, "rms_error_over_rms_true": 0.013, "correlation": 0.9999,
+                           "facet_correlation": [0.9999]}}
 FIELD_METRICS = {"noon": {"ideal": {"flux_accuracy": 0.81, "psnr": 24.5, "peak_flux_error": 0.12,
                                     "intercept": 0.9},
                           "hybrid": {"flux_accuracy": 0.93, "psnr": 31.2, "peak_flux_error": 0.03,
@@ -89,6 +93,8 @@ def files(tmp_path):
     (r / "tables/table1.csv").write_text("network,dataset,psnr_train\nnearest,scan,100.0\n")
     (r / "diagnosis").mkdir()
     (r / "diagnosis/scan.json").write_text(json.dumps(DIAGNOSIS))
+    (r / "recovery").mkdir()
+    (r / "recovery/scan.json").write_text(json.dumps(RECOVERY))
     (r / "field").mkdir()
     (r / "field/metrics.json").write_text(json.dumps(FIELD_METRICS))
     (r / "leave_one_out").mkdir()
@@ -104,6 +110,7 @@ def files(tmp_path):
         "samples": [_png(r / "figures/scan/nearest_samples.png")],
         "psnr": [_png(r / "figures/scan/nearest_psnr.png")],
         "data_efficiency": [_png(r / "figures/data_efficiency.png")],
+        "recovery": [str(r / "recovery/scan.json")],
         "diagnosis": [str(r / "diagnosis/scan.json")],
         "diagnosis_figures": [_png(r / f"figures/diagnosis/scan_{k}.png")
                               for k in ("signatures", "ranking", "residuals", "ledger")],
@@ -137,6 +144,9 @@ def test_report_has_every_section_with_figures_inline_and_no_links_to_files(file
     assert "80 %" in diagnosis and "-0 %" not in diagnosis  # relative reductions
     assert "counts from: relative reduction 10 %" in diagnosis and "needs the field geometry" in diagnosis
     assert "rms_centroid_offset_mrad" in diagnosis
+    recovered = _section(text, "What drt recovered of the true heliostats")
+    assert "<h3>scan</h3>" in recovered and "<td>surface_mm</td>" in recovered and "0.013" in recovered
+    assert "models/scan/drt.pt" not in recovered  # the file names are the rule's inputs, not results
     assert "abcdef012345" in _section(text, "Error ledger")
     field = _section(text, "Field flux maps")
     assert "<td>noon / hybrid</td>" in field and "31.2" in field
@@ -194,6 +204,9 @@ def test_bad_inputs_raise_one_clear_error_naming_the_file(tmp_path):
     (tmp_path / "l.csv").write_text("id,network\n1,drt\n")
     with pytest.raises(DataError, match="l.csv: not a leave-one-out CSV"):
         build_report({"leave_one_out": [str(tmp_path / "l.csv")]}, None, "t")
+    (tmp_path / "r.json").write_text(json.dumps([1, 2]))
+    with pytest.raises(DataError, match="r.json: not a recovery JSON"):
+        build_report({"recovery": [str(tmp_path / "r.json")]}, None, "t")
     with pytest.raises(DataError, match="missing.json: cannot read report input"):
         build_report({"field": [str(tmp_path / "missing.json")]}, None, "t")
     (tmp_path / "b/rule").mkdir(parents=True)
@@ -235,7 +248,7 @@ def test_report_inputs_of_the_tiny_config_list_the_expected_files():
     assert report_inputs(config) == {
         "datasets": [f"{r}/datasets/scan.h5", f"{r}/datasets/sky.h5"],
         "dataset_figures": [f"{r}/figures/datasets/scan.png", f"{r}/figures/datasets/sky.png"],
-        "paint_centroids": [], "table": [], "samples": [], "psnr": [], "data_efficiency": [],
+        "paint_centroids": [], "table": [], "samples": [], "psnr": [], "data_efficiency": [], "recovery": [],
         "diagnosis": [], "diagnosis_figures": [], "field": [], "leave_one_out": [],
     }
     config = copy.deepcopy(config)
@@ -248,3 +261,13 @@ def test_report_inputs_of_the_tiny_config_list_the_expected_files():
     assert f"{r}/figures/diagnosis/sky_ledger.png" in inputs["diagnosis_figures"]
     assert len(inputs["diagnosis_figures"]) == 8
     assert inputs["field"] == [f"{r}/field/flux.png", f"{r}/field/metrics.json"]
+    assert inputs["recovery"] == []  # drt is not among the networks
+
+
+def test_recovery_files_are_the_synthetic_datasets_drt_is_scored_on():
+    config = copy.deepcopy(load_config(TINY))
+    assert recovery_paths(config) == []
+    config["networks"] = {"nearest": {}, "drt": {}}
+    assert recovery_paths(config) == ["results/tiny/recovery/scan.json", "results/tiny/recovery/sky.json"]
+    config["datasets"]["sky"]["source"] = "paint"  # real images: no true heliostat to compare with
+    assert recovery_paths(config) == ["results/tiny/recovery/scan.json"]

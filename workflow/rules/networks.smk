@@ -49,6 +49,24 @@ rule evaluate:
         " --grid {output.grid} --psnr {output.psnr} > {log} 2>&1"
 
 
+rule recovery:
+    """What drt recovered of a synthetic dataset's true heliostat (tracking, pointing, surface, canting, slope error)."""
+    input:
+        model=f"{RESULTS}/models/{{dataset}}/drt.pt",
+        heliostat=lambda wc: heliostat_path(config, wc.dataset),
+        dataset=f"{RESULTS}/datasets/{{dataset}}.h5",
+    output:
+        f"{RESULTS}/recovery/{{dataset}}.json",
+    log:
+        f"{RESULTS}/logs/recovery/{{dataset}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/recovery/{{dataset}}.tsv"
+    threads: 1
+    shell:
+        "helioflow recovery --model {input.model} --heliostat {input.heliostat} --dataset {input.dataset}"
+        " --output {output} > {log} 2>&1"
+
+
 rule table:
     """Table 1: network x dataset x split (PSNR, SSIM) with controllability."""
     input:

@@ -26,6 +26,7 @@ import torch
 
 from ..data.hdf5 import SPLITS, CalibrationDataset, read_dataset
 from ..errors import DataError
+from .atomic import write_text_atomic
 from .figures import plt, save_figure
 from .metrics import METRICS, PSNR_MAX_DB, image_metrics, psnr
 
@@ -34,14 +35,6 @@ log = logging.getLogger(__name__)
 CSV_COLUMNS = ("index", "azimuth_deg", "elevation_deg", "split", *METRICS)
 SPLIT_COLOURS = {"train": "tab:blue", "interpolation": "tab:green", "extrapolation": "tab:red"}
 _BATCH = 256  # sun positions per predict() call
-
-
-def _write_atomic(path: str | os.PathLike, text: str) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def _geometry(ds: CalibrationDataset, dataset_path) -> tuple[tuple[float, float], float]:
@@ -171,7 +164,7 @@ def evaluate_model(model_path: str | os.PathLike, dataset_path: str | os.PathLik
                           "bound, not a prediction")
         log.info("%s is not controllable: scored as best of %d samples", network, gan_samples)
 
-    _write_atomic(out_json, json.dumps(result, indent=2, allow_nan=False) + "\n")
+    write_text_atomic(out_json, json.dumps(result, indent=2, allow_nan=False) + "\n")
     _write_csv(out_csv, ds, per_image)
     title = f"{network} on {name}" + ("" if model.controllable else f" (best of {gan_samples} samples)")
     plot_prediction_grid(ds, meas, pred, per_image["psnr"], title, out_grid_png)
@@ -190,7 +183,7 @@ def _write_csv(path, ds: CalibrationDataset, per_image: dict) -> None:
     for i in range(len(ds.images)):
         writer.writerow([i, f"{ds.azimuth_deg[i]:.6g}", f"{ds.elevation_deg[i]:.6g}", str(ds.split[i]),
                          *(f"{float(per_image[k][i]):.8g}" for k in METRICS)])
-    _write_atomic(path, buf.getvalue())
+    write_text_atomic(path, buf.getvalue())
 
 
 def _spread(ds: CalibrationDataset, idx: np.ndarray, k: int) -> np.ndarray:

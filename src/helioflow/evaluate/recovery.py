@@ -16,6 +16,7 @@ Compares the model file's fitted tensors with the heliostat file the dataset was
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import replace
 
@@ -28,6 +29,7 @@ from ..errors import DataError
 from ..models.registry import load_model
 from ..physics.geometry import sun_vector
 from ..physics.heliostat import bspline_basis, orientation
+from .atomic import write_text_atomic
 
 
 def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, dataset_path: str | os.PathLike) -> dict:
@@ -69,6 +71,15 @@ def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, d
     return out
 
 
+def write_recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike,
+                   dataset_path: str | os.PathLike, output: str | os.PathLike) -> dict:
+    """Rule `recovery`: the comparison as recovery/<dataset>.json (written whole)."""
+    result = {"model": str(model_path), "heliostat": str(heliostat_path), "dataset": str(dataset_path),
+              **recovery(model_path, heliostat_path, dataset_path)}
+    write_text_atomic(output, json.dumps(result, indent=1) + "\n")
+    return result
+
+
 def surface_heights(control_heights_mm: torch.Tensor, samples_per_side: int = 64) -> torch.Tensor:
     """(F, C, C) control heights (mm) -> (F, G, G) heights (mm) of the deformation at the centres of
     G x G equal cells of each facet."""
@@ -77,8 +88,12 @@ def surface_heights(control_heights_mm: torch.Tensor, samples_per_side: int = 64
     return torch.einsum("ui,fij,vj->fuv", basis, control_heights_mm, basis)
 
 
-def _correlation(a: torch.Tensor, b: torch.Tensor) -> float:
-    return round(float(np.corrcoef(a.flatten().numpy(), b.flatten().numpy())[0, 1]), 4)
+def _correlation(a: torch.Tensor, b: torch.Tensor) -> float | None:
+    """Pearson correlation of two height fields; None where one is flat (it has none)."""
+    a, b = a.flatten().numpy(), b.flatten().numpy()
+    if a.std() == 0.0 or b.std() == 0.0:
+        return None
+    return round(float(np.corrcoef(a, b)[0, 1]), 4)
 
 
 def _rounded(values: torch.Tensor) -> list[float]:

@@ -9,6 +9,7 @@ benchmark files, and writes results/<experiment>/report.html with the sections
     Table 1             tables/table1.md (rendered) and table1.csv (embedded download)
     Sample grids        figures/<d>/<model>_samples.png
     PSNR / sun position figures/<d>/<model>_psnr.png (+ figures/data_efficiency.png)
+    Recovery            recovery/<d>.json: what drt recovered of each synthetic heliostat, as tables
     Diagnosis           diagnosis/<d>.json: verdict, ranking, signatures; figures/diagnosis/<d>_*.png
     Error ledger        the `ledger` of each diagnosis JSON and figures/diagnosis/<d>_ledger.png
     Field flux maps     field/flux.png (truth, ideal, hybrid maps beside their differences to truth)
@@ -47,7 +48,7 @@ from .report_html import (
 )
 
 SECTIONS = ("datasets", "dataset_figures", "paint_centroids", "table", "samples", "psnr", "data_efficiency",
-            "diagnosis", "diagnosis_figures", "field", "leave_one_out")
+            "recovery", "diagnosis", "diagnosis_figures", "field", "leave_one_out")
 ABSENT = '<p class="absent">Not part of this experiment.</p>'
 
 
@@ -112,6 +113,18 @@ def _psnr_section(files: dict[str, list[str]]) -> str:
     return "\n".join(parts)
 
 
+def _recovery_section(files: dict[str, list[str]]) -> str:
+    """Per synthetic dataset: drt's fitted heliostat against the true one (evaluate.recovery)."""
+    parts = []
+    for path in files["recovery"]:
+        data = read_json(path)
+        if not isinstance(data, dict) or "dataset" not in data:
+            raise DataError(f"{path}: not a recovery JSON (written by `helioflow recovery --output`)")
+        parts += [f"<h3>{esc(Path(path).stem)}</h3>",
+                  nested_tables({k: v for k, v in data.items() if k not in ("model", "heliostat", "dataset")})]
+    return "\n".join(parts)
+
+
 def _field_section(files: dict[str, list[str]]) -> str:
     """The field figure (compose_field draws the maps beside their differences to truth) and the
     metrics against truth, any nesting of them, as tables."""
@@ -153,6 +166,7 @@ LAYOUT = (
     ("table1", "Table 1", ("table",), _table1_section),
     ("samples", "Sample grids", ("samples",), _samples_section),
     ("psnr", "PSNR against sun position", ("psnr", "data_efficiency"), _psnr_section),
+    ("recovery", "What drt recovered of the true heliostats", ("recovery",), _recovery_section),
     ("diagnosis", "Diagnosis: which effect is missing", ("diagnosis",), diagnosis_section),
     ("ledger", "Error ledger", ("diagnosis",), ledger_section),
     ("field", "Field flux maps", ("field",), _field_section),

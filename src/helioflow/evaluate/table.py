@@ -5,25 +5,17 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
 from pathlib import Path
 
 from ..data.hdf5 import SPLITS
 from ..errors import DataError
+from .atomic import write_text_atomic
 
 NETWORK_ORDER = ("nearest", "gan", "cgan", "nerf")
 DASH = "–"
 SPLIT_LABELS = {"train": "train", "interpolation": "interp.", "extrapolation": "extrap."}
 CSV_COLUMNS = ("network", "dataset", "controllable",
                *(f"{m}_{s}" for m in ("psnr", "ssim") for s in SPLITS), *(f"n_{s}" for s in SPLITS))
-
-
-def _write_atomic(path, text: str) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def _network_key(network: str) -> tuple[int, str]:
@@ -94,7 +86,7 @@ def build_table(metrics_paths: list, out_csv, out_md) -> list[dict]:
     writer = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, lineterminator="\n")
     writer.writeheader()
     writer.writerows({k: ("" if v is None else v) for k, v in row.items()} for row in rows)
-    _write_atomic(out_csv, buf.getvalue())
+    write_text_atomic(out_csv, buf.getvalue())
 
     samples = sorted({d.get("samples") for _, d in entries if not d["controllable"] and d.get("samples")})
     best_of = f"best of {', '.join(map(str, samples))}" if samples else "best of N"
@@ -113,6 +105,6 @@ def build_table(metrics_paths: list, out_csv, out_md) -> list[dict]:
         cells = [row["network"], row["dataset"], row["controllable"],
                  *(_fmt(row[f"psnr_{s}"], 1) for s in SPLITS), *(_fmt(row[f"ssim_{s}"], 3) for s in SPLITS)]
         lines.append("| " + " | ".join(cells) + " |")
-    _write_atomic(out_md, "\n".join(lines) + "\n")
+    write_text_atomic(out_md, "\n".join(lines) + "\n")
     return rows
 
