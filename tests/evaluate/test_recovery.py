@@ -80,14 +80,14 @@ def test_a_scaled_surface_misses_the_true_heights_by_the_scale(files, tmp_path, 
 
 
 def test_the_rule_writes_the_comparison_with_its_inputs_named(files, tmp_path):
-    """Rule `recovery` (helioflow recovery --output): the JSON file, whole, with what it compared."""
+    """Rule `recovery` (helioflow recovery --output): the JSON file, whole: what the command prints."""
     heliostat, dataset = files
     model = _drt_file(tmp_path / "drt.pt", heliostat, 0.5)
     out = tmp_path / "recovery" / "scan.json"
     assert main(["recovery", "--model", str(model), "--heliostat", str(heliostat), "--dataset", str(dataset),
                  "--output", str(out)]) == 0
     written = json.loads(out.read_text())
-    assert written["model"] == str(model) and written["dataset"] == str(dataset)
+    assert written == recovery(model, heliostat, dataset)
     assert written["tracking_mrad"]["max_error"] == pytest.approx(0.5, abs=1e-4)
     assert [p.name for p in out.parent.iterdir()] == ["scan.json"]  # no temporary left
 

@@ -66,8 +66,7 @@ DIAGNOSIS = {
                {"revision": 2, "model_hash": "9876543210fedcba", "model_effects": {"tracking": "fit"},
                 "heldout_error": 0.08}],
 }
-RECOVERY = {"model": "models/scan/drt.pt", "heliostat": "surfaces/small.h5", "dataset": "datasets/scan.h5",
-            "tracking_mrad": {"fitted": [0.1, 0.2], "true": [0.1, 0.25], "max_error": 0.05},
+RECOVERY = {"tracking_mrad": {"fitted": [0.1, 0.2], "true": [0.1, 0.25], "max_error": 0.05},
             "surface_mm": {"rms_true": 0.11, "rms_error_over_rms_true": 0.013, "correlation": 0.9999,
                            "facet_correlation": [0.9999]}}
 FIELD_METRICS = {"noon": {"ideal": {"flux_accuracy": 0.81, "psnr": 24.5, "peak_flux_error": 0.12,
@@ -146,7 +145,6 @@ def test_report_has_every_section_with_figures_inline_and_no_links_to_files(file
     assert "rms_centroid_offset_mrad" in diagnosis
     recovered = _section(text, "What drt recovered of the true heliostats")
     assert "<h3>scan</h3>" in recovered and "<td>surface_mm</td>" in recovered and "0.013" in recovered
-    assert "models/scan/drt.pt" not in recovered  # the file names are the rule's inputs, not results
     assert "abcdef012345" in _section(text, "Error ledger")
     field = _section(text, "Field flux maps")
     assert "<td>noon / hybrid</td>" in field and "31.2" in field
@@ -204,7 +202,7 @@ def test_bad_inputs_raise_one_clear_error_naming_the_file(tmp_path):
     (tmp_path / "l.csv").write_text("id,network\n1,drt\n")
     with pytest.raises(DataError, match="l.csv: not a leave-one-out CSV"):
         build_report({"leave_one_out": [str(tmp_path / "l.csv")]}, None, "t")
-    (tmp_path / "r.json").write_text(json.dumps([1, 2]))
+    (tmp_path / "r.json").write_text(json.dumps({"dataset": "scan"}))
     with pytest.raises(DataError, match="r.json: not a recovery JSON"):
         build_report({"recovery": [str(tmp_path / "r.json")]}, None, "t")
     with pytest.raises(DataError, match="missing.json: cannot read report input"):

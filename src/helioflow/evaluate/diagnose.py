@@ -45,6 +45,7 @@ from ..models.physics_fit import (
 )
 from ..physics.effects import FIT, REGISTRY
 from ..physics.target import centroid
+from .atomic import write_text_atomic
 
 log = logging.getLogger(__name__)
 
@@ -299,10 +300,7 @@ def update_ledger(path: str | os.PathLike, dataset_hash: str, effects: dict, err
         entry = {"revision": len(same) + 1, "model_hash": key, "dataset_hash": dataset_hash, "model_effects": effects}
         entries.append(entry)
     entry["heldout_error"] = error
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(entries, indent=1))
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps(entries, indent=1))
     return [e for e in entries if e["dataset_hash"] == dataset_hash]
 
 
@@ -363,8 +361,6 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     }
     error = misplaced_flux(pred, everything.images, lost).numpy()
     plot_diagnosis(result, ds, pred.numpy(), everything.images.numpy(), error, figures)
-    tmp = Path(str(output_json) + ".tmp")
-    tmp.write_text(json.dumps(result, indent=1))
-    os.replace(tmp, output_json)
+    write_text_atomic(output_json, json.dumps(result, indent=1))
     log.info("verdict: %s", result["verdict"])
     return result

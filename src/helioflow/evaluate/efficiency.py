@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 from pathlib import Path
 
 from ..workflow import parse_model
+from .atomic import write_text_atomic
 from .figures import plt, save_figure
 
 SPLITS_SHOWN = ("interpolation", "extrapolation")
@@ -25,13 +27,11 @@ def plot_data_efficiency(metrics_paths: list[str], figure_path: str | os.PathLik
             rows.append({"dataset": m["dataset"], "network": network, "train_images": count, "split": split,
                          "psnr": m["splits"][split]["psnr"]})
     rows.sort(key=lambda r: (r["dataset"], r["network"], r["split"], r["train_images"]))
-    Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(csv_path).with_name(Path(csv_path).name + ".tmp")
-    with open(tmp, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=["dataset", "network", "train_images", "split", "psnr"])
-        writer.writeheader()
-        writer.writerows(rows)
-    os.replace(tmp, csv_path)
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=["dataset", "network", "train_images", "split", "psnr"])
+    writer.writeheader()
+    writer.writerows(rows)
+    write_text_atomic(csv_path, buf.getvalue())
     datasets = sorted({r["dataset"] for r in rows})
     fig, axes = plt.subplots(1, len(datasets), figsize=(4.5 * len(datasets), 3.4), squeeze=False)
     for ax, dataset in zip(axes[0], datasets):

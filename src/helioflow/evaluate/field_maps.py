@@ -53,6 +53,7 @@ from ..physics.geometry import azimuth_elevation, normalize, sun_vector
 from ..physics.heliostat import Heliostat
 from ..physics.raytrace import Optics, trace
 from ..physics.target import Target
+from .atomic import write_text_atomic
 from .field_figure import plot_field_maps
 from .field_metrics import map_metrics, mean_metrics, spot_metrics
 
@@ -377,7 +378,7 @@ def compose_field(
     metrics = _metrics(scene, spec, truth, ideal, maps, spots, details)
     metrics["seconds"] = round(time.perf_counter() - start, 2)
     write_flux(flux_path, scene, spec, maps, spots, details, {"truth": truth, "ideal": ideal})
-    _write_json(metrics_path, metrics)
+    write_text_atomic(metrics_path, json.dumps(metrics, indent=2) + "\n")
     sun_deg = np.degrees(torch.stack((scene.azimuth, scene.elevation), -1).cpu().numpy())
     plot_field_maps(
         figure_path,
@@ -519,11 +520,3 @@ def write_flux(
         "config_hash": config_hash(spec),
     }
     write_arrays(path, arrays, attrs, SCHEMA, units={m: "W/m^2" for m in MAPS})
-
-
-def _write_json(path: str | os.PathLike, data: dict) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
-    os.replace(tmp, path)

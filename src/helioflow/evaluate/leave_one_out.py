@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import csv
 import io
-import os
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +20,7 @@ import torch
 
 from ..data.hdf5 import read_dataset
 from ..errors import DataError
+from .atomic import write_text_atomic
 from .diagnose import misplaced_flux
 from .figures import plt, save_figure
 
@@ -111,11 +111,7 @@ def _write_csv(path, rows: list[dict]) -> None:
     writer = csv.DictWriter(buf, fieldnames=COLUMNS, lineterminator="\n")
     writer.writeheader()
     writer.writerows({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()} for r in rows)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(buf.getvalue(), encoding="utf-8")
-    os.replace(tmp, path)
+    write_text_atomic(path, buf.getvalue())
 
 
 def plot_leave_one_out(panels: list[dict], networks: list[str], path) -> None:

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import os
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -27,6 +26,7 @@ from ..errors import DataError
 from ..physics.effects import resolve
 from ..physics.raytrace import trace
 from ..physics.target import Target, centroid
+from .atomic import write_text_atomic
 
 DEFAULT_SUNSHAPE = {"kind": "pillbox", "half_angle_mrad": 4.65}
 SHAPE_THRESHOLD = 0.1  # spot moments use the pixels above this fraction of the image's peak
@@ -121,9 +121,5 @@ def format_table(rows: list[dict]) -> str:
 
 def write_centroid_check(rows: list[dict], path: str | os.PathLike) -> None:
     """Write the rows as JSON (temporary name, then renamed)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
     units = {"offsets": "mrad", "uv": "m", "angles": "deg"}
-    tmp.write_text(json.dumps({"units": units, "images": rows}, indent=2))
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps({"units": units, "images": rows}, indent=2))

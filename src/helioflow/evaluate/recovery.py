@@ -73,9 +73,9 @@ def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, d
 
 def write_recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike,
                    dataset_path: str | os.PathLike, output: str | os.PathLike) -> dict:
-    """Rule `recovery`: the comparison as recovery/<dataset>.json (written whole)."""
-    result = {"model": str(model_path), "heliostat": str(heliostat_path), "dataset": str(dataset_path),
-              **recovery(model_path, heliostat_path, dataset_path)}
+    """Rule `recovery`: the comparison as recovery/<dataset>.json (written whole), the JSON the
+    command prints without --output."""
+    result = recovery(model_path, heliostat_path, dataset_path)
     write_text_atomic(output, json.dumps(result, indent=1) + "\n")
     return result
 

@@ -33,6 +33,7 @@ import numpy as np
 
 from ..data.hdf5 import SPLITS, read_dataset
 from ..errors import DataError
+from .atomic import write_text_atomic
 from .report_diagnosis import diagnosis_section, ledger_section
 from .report_html import (
     download,
@@ -118,10 +119,9 @@ def _recovery_section(files: dict[str, list[str]]) -> str:
     parts = []
     for path in files["recovery"]:
         data = read_json(path)
-        if not isinstance(data, dict) or "dataset" not in data:
+        if not isinstance(data, dict) or "tracking_mrad" not in data:
             raise DataError(f"{path}: not a recovery JSON (written by `helioflow recovery --output`)")
-        parts += [f"<h3>{esc(Path(path).stem)}</h3>",
-                  nested_tables({k: v for k, v in data.items() if k not in ("model", "heliostat", "dataset")})]
+        parts += [f"<h3>{esc(Path(path).stem)}</h3>", nested_tables(data)]
     return "\n".join(parts)
 
 
@@ -236,8 +236,4 @@ def write_report(output: str | os.PathLike, inputs: dict[str, list[str]],
                  benchmark_dir: str | os.PathLike | None, experiment: str) -> None:
     """Write build_report(...) to `output` (temporary name, then renamed)."""
     text = build_report(inputs, benchmark_dir, experiment)
-    output = Path(output)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    tmp = output.with_name(f".{output.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, output)
+    write_text_atomic(output, text)

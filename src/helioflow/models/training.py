@@ -10,6 +10,7 @@ saved beside the model.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 from dataclasses import dataclass
@@ -108,16 +109,15 @@ def save_checkpoint(path: Path, model: SpotModel, optimizers: dict, step: int, c
 def write_curve(curve: list[dict[str, float]], csv_path: str | os.PathLike, png_path: str | os.PathLike,
                 title: str) -> None:
     """The training curve as CSV (step, losses...) and as a log-scale plot."""
+    from ..evaluate.atomic import write_text_atomic
     from ..evaluate.figures import plt, save_figure
 
     keys = sorted({k for row in curve for k in row} - {"step"})
-    Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(csv_path).with_name(Path(csv_path).name + ".tmp")
-    with open(tmp, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=["step", *keys])
-        writer.writeheader()
-        writer.writerows(curve)
-    os.replace(tmp, csv_path)
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=["step", *keys])
+    writer.writeheader()
+    writer.writerows(curve)
+    write_text_atomic(csv_path, buf.getvalue())
     fig, ax = plt.subplots(figsize=(5, 3.2))
     for k in keys:
         steps = [row["step"] for row in curve if k in row]
