@@ -5,8 +5,8 @@ Compares the model file's fitted tensors with the heliostat file the dataset was
 
 - tracking: each of the five parameters (mrad) and the largest error;
 - pointing: the angle (mrad) between the true and the fitted mirror normal at the dataset's sun
-  positions, RMS and largest: what the images determine when the five parameters are not
-  separable (one azimuth scan points the mirror alike for several combinations);
+  positions, RMS and largest: what the images see most directly (a single-azimuth scan points
+  the mirror almost alike for a range of elevation offsets and northward pedestal tilts);
 - surface: RMS error of the surface heights (the B-spline deformation sampled on a fine grid of
   equal cells over every facet, so each square metre counts alike) over their RMS amplitude, their
   correlation, and the correlation per facet (which facets came back);

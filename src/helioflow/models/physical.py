@@ -55,6 +55,8 @@ class PhysicsConfig:
             0 = sharp only.
         per_image_normalised: the dataset's images are each divided by their own peak (from its
             attributes): fit by shape, predict peak-normalised images (module docstring).
+        gauss_newton_steps: Gauss-Newton steps that end a fit with at most 64 free tensor
+            entries (physics_fit module docstring); 0 = none.
     """
 
     effects: dict = field(default_factory=dict)
@@ -71,12 +73,15 @@ class PhysicsConfig:
     fit_rays: int = 100_000
     coarse_blur_px: float = 0.0
     per_image_normalised: bool = False
+    gauss_newton_steps: int = 4
 
     def __post_init__(self):
         check_effects(self.effects, "model.effects", allow_fit=True)
         for key in ("fit_steps", "fit_images", "cells_per_side", "rounds", "fit_rays"):
             if not (isinstance(getattr(self, key), int) and getattr(self, key) >= 1):
                 raise ConfigError(f"{key} = {getattr(self, key)!r}: expected an integer >= 1")
+        if not (isinstance(self.gauss_newton_steps, int) and self.gauss_newton_steps >= 0):
+            raise ConfigError(f"gauss_newton_steps = {self.gauss_newton_steps!r}: expected an integer >= 0")
 
 
 def drt_effects(effects: dict, n_facets: int) -> dict:
@@ -128,7 +133,8 @@ class RaytraceModel(SpotModel):
         measured = Measurements(data.images[index], data.azimuth_deg[index], data.elevation_deg[index], data.scale)
         c = self.config
         settings = FitSettings(steps=c.fit_steps, rounds=c.rounds, coarse_blur_px=c.coarse_blur_px,
-                               loss="shape" if c.per_image_normalised else "absolute")
+                               loss="shape" if c.per_image_normalised else "absolute",
+                               gauss_newton_steps=c.gauss_newton_steps)
         self.fitted = fit_effects(self.scene(fitting=True), self.effects_to_fit(self.heliostat), measured, settings,
                                   progress=True, label=f"fit {self.name}")
         self.curve = [{"step": i, "loss": v} for i, v in enumerate(self.fitted.history)]
