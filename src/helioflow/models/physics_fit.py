@@ -225,8 +225,8 @@ class FitSettings:
             to fine, so that rays displaced by more than a pixel (a surface's slopes) still feel
             where they belong.
         gauss_newton_steps: Gauss-Newton steps after the rounds (module docstring); 0 = none.
-        gauss_newton_max_parameters: ... when at most this many tensor entries are free (each
-            step traces twice per entry).
+        gauss_newton_max_parameters: the steps run only when at most this many tensor entries
+            are free (each step traces twice per entry).
     """
 
     steps: int = 150
