@@ -377,9 +377,9 @@ class _Fitter:
         """`gauss_newton_steps` Gauss-Newton steps on the free tensor entries; returns (tensors,
         loss after each step). The Jacobian of the residual images (pixels x entries) comes from
         central differences of FD_STEPS, two traces per entry: the splatted images are rough on a
-        finer scale (at the sanity_check fit, autograd and 0.01 mrad differences disagree by 30 %
-        in the tracking gradient). A step is halved (down to 1/8) until the loss falls; when none
-        does, the steps end. Directions the model cannot move (a facet's plane, the mean canting)
+        finer scale (at the stalled sanity_check fit, autograd and 0.01 mrad differences differ by
+        12 % in the tracking gradient and by a factor 5 along the flat valley). A step is halved
+        (down to 1/8) until the loss falls; when none does, the steps end. Directions the model cannot move (a facet's plane, the mean canting)
         make the normal equations singular: a Levenberg damping of 1e-9 of their mean diagonal
         keeps them solvable and takes no step along those directions. The surface penalty is left
         out (far below the data term)."""
