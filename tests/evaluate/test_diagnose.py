@@ -9,14 +9,14 @@ import torch
 
 from helioflow.evaluate.diagnose import ABSOLUTE_FLOOR, THRESHOLD, Diagnosis, misplaced_flux, update_ledger
 from helioflow.models.physics_fit import FitSettings, Measurements, Scene
-from helioflow.physics.heliostat import ideal_heliostat, without_planes
+from helioflow.physics.heliostat import Heliostat, ideal_heliostat, without_planes
 from helioflow.physics.target import Target
 
 BUIE = {"kind": "buie", "csr": 0.1}
 SETTINGS = FitSettings(steps=100, rounds=2, search_iterations=12)
 
 
-def true_heliostat() -> "Heliostat":  # noqa: F821
+def true_heliostat() -> Heliostat:
     """2 x 2 parallel facets with seeded canting (1.5 mrad) and surface (1 mm) errors. Parallel,
     not focused: the images of focused facets overlap on the target, which facet carries which
     tilt is then ambiguous, and a canting fit finds a permutation of the true tilts."""
