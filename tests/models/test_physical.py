@@ -8,7 +8,7 @@ import torch
 
 from helioflow.errors import ConfigError
 from helioflow.models.physical import PhysicsConfig, drt_effects
-from helioflow.models.physics_fit import FitSettings, Measurements, Scene, blur_levels, fit_effects
+from helioflow.models.physics_fit import FitSettings, Measurements, Scene, _Fitter, blur_levels, fit_effects
 from helioflow.physics.heliostat import TRACKING_PARAMETERS, ideal_heliostat, without_planes
 from helioflow.physics.target import Target
 
@@ -156,3 +156,25 @@ def test_coarse_to_fine_blur_levels_halve_down_to_one_pixel_then_sharp():
     assert blur_levels(4.0) == (4.0, 2.0, 1.0, 0.0)
     assert blur_levels(3.0) == (3.0, 1.5, 0.0)
     assert blur_levels(0.0) == (0.0,)
+
+
+@pytest.mark.slow
+def test_a_facet_hop_refits_a_facet_left_in_a_wrong_basin():
+    """2 x 2 facets with true surfaces; the fit starts with facet 0's heights negated (a wrong
+    basin). L-BFGS from there leaves it wrong; the first hop's block is facet 0 (seed 0), which it
+    resets and refits; the second hop's (facet 1, already right) must not make the kept loss rise."""
+    s = scene(2, 2)
+    truth = without_planes(torch.randn(4, 5, 5, generator=torch.Generator().manual_seed(5))) * 0.5
+    world = {"sunshape": BUIE, "surface": {}}
+    data = measured(s, world, {"surface": truth})
+    effects = {"sunshape": BUIE, "surface": {"control_heights_mm": "fit"}}
+    start = truth.clone()
+    start[0] = -truth[0]
+    fit = _Fitter(s, data, data.images, FitSettings(steps=40, facet_hops=2, hop_seed=0), [])
+    masks = {"surface": torch.ones_like(truth, dtype=torch.bool)}
+    stuck, _ = fit.descend(effects, {"surface": start}, masks, False, "descent")
+    hopped, losses = fit.hop(effects, stuck, masks, False, "hops")
+    error = lambda t: float((t["surface"][0] - truth[0]).norm() / truth[0].norm())
+    assert error(stuck) > 0.5
+    assert error(hopped) < 0.1
+    assert all(b <= a for a, b in zip([fit.loss(effects, stuck)] + losses, losses))

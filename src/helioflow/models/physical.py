@@ -55,6 +55,8 @@ class PhysicsConfig:
             0 = sharp only.
         per_image_normalised: the dataset's images are each divided by their own peak (from its
             attributes): fit by shape, predict peak-normalised images (module docstring).
+        facet_hops: basin hops after the rounds of a surface fit on several facets
+            (physics_fit module docstring); 0 = none.
         gauss_newton_steps: Gauss-Newton steps that end a fit with at most 64 free tensor
             entries (physics_fit module docstring); 0 = none.
     """
@@ -73,6 +75,7 @@ class PhysicsConfig:
     fit_rays: int = 100_000
     coarse_blur_px: float = 0.0
     per_image_normalised: bool = False
+    facet_hops: int = 0
     gauss_newton_steps: int = 4
 
     def __post_init__(self):
@@ -80,8 +83,9 @@ class PhysicsConfig:
         for key in ("fit_steps", "fit_images", "cells_per_side", "rounds", "fit_rays"):
             if not (isinstance(getattr(self, key), int) and getattr(self, key) >= 1):
                 raise ConfigError(f"{key} = {getattr(self, key)!r}: expected an integer >= 1")
-        if not (isinstance(self.gauss_newton_steps, int) and self.gauss_newton_steps >= 0):
-            raise ConfigError(f"gauss_newton_steps = {self.gauss_newton_steps!r}: expected an integer >= 0")
+        for key in ("facet_hops", "gauss_newton_steps"):
+            if not (isinstance(getattr(self, key), int) and getattr(self, key) >= 0):
+                raise ConfigError(f"{key} = {getattr(self, key)!r}: expected an integer >= 0")
 
 
 def drt_effects(effects: dict, n_facets: int) -> dict:
@@ -134,7 +138,7 @@ class RaytraceModel(SpotModel):
         c = self.config
         settings = FitSettings(steps=c.fit_steps, rounds=c.rounds, coarse_blur_px=c.coarse_blur_px,
                                loss="shape" if c.per_image_normalised else "absolute",
-                               gauss_newton_steps=c.gauss_newton_steps)
+                               facet_hops=c.facet_hops, gauss_newton_steps=c.gauss_newton_steps)
         self.fitted = fit_effects(self.scene(fitting=True), self.effects_to_fit(self.heliostat), measured, settings,
                                   progress=True, label=f"fit {self.name}")
         self.curve = [{"step": i, "loss": v} for i, v in enumerate(self.fitted.history)]

@@ -20,6 +20,13 @@ from the start mimics part of a tracking error or a blur and the alternation the
 that valley (a kernel fit of the semi_sphere heliostat stalled with the slope error at 0.82 mrad
 for a true 0.3, the sanity_check fit at 0.44 for 0.50).
 
+A surface fitted on several facets then takes `facet_hops` basin hops: the surface and canting of
+a random block of neighbouring facets (a facet and its 0, 1 or 3 nearest neighbours) are reset to
+flat and untilted, everything is descended again (images blurred by 2 px, then sharp), and the
+result is kept when the loss falls. Neighbouring facets' images overlap, and a fit from flat
+facets ends where the neighbours' flux covers for a wrong facet; no descent leaves that minimum,
+but forgetting a block and fitting it again does (semi_sphere: README, "Physics models").
+
 A fit with few free tensor entries (at most `gauss_newton_max_parameters`) ends with
 Gauss-Newton steps on them (`gauss_newton_steps`), then one more spread search. L-BFGS stops in
 long flat valleys: a single-azimuth scan turns the mirror about nearly one axis, so the elevation
@@ -52,6 +59,8 @@ SCALES = {("camera", "gain"), ("reflectivity", "value"), ("attenuation", "transm
 OFFSETS = {("camera", "background_w_m2")}
 TENSORS = {"tracking": "tracking", "canting": "facet_tilts_mrad", "surface": "control_heights_mm"}
 FD_STEPS = {"tracking": 0.01, "canting": 0.01, "surface": 0.002}  # central-difference steps (mrad, mrad, mm)
+HOP_BLURS_PX = (2.0, 0.0)  # blur levels of the descents after a basin hop
+HOP_BLOCK_SIZES = (1, 2, 4)  # facets a basin hop resets: a facet and its nearest neighbours
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 SEARCH_FLOOR = 0.02  # lowest value a spread scalar is searched from (its unit)
 SEARCH_CEILING = 20.0  # highest value a spread scalar is searched to
@@ -224,6 +233,9 @@ class FitSettings:
             std (pixels), then of half of it, ... (`blur_levels`), then the sharp ones: coarse
             to fine, so that rays displaced by more than a pixel (a surface's slopes) still feel
             where they belong.
+        facet_hops: basin hops after the rounds for a surface fitted on several facets (module
+            docstring); 0 = none. Each costs the traces of len(HOP_BLURS_PX) descents.
+        hop_seed: seeds the blocks the hops pick.
         gauss_newton_steps: Gauss-Newton steps after the rounds (module docstring); 0 = none.
         gauss_newton_max_parameters: the steps run only when at most this many tensor entries
             are free (each step traces twice per entry).
@@ -235,6 +247,8 @@ class FitSettings:
     surface_weight: float = 1e-8
     loss: str = "absolute"
     coarse_blur_px: float = 0.0
+    facet_hops: int = 0
+    hop_seed: int = 0
     gauss_newton_steps: int = 0
     gauss_newton_max_parameters: int = 64
 
@@ -269,6 +283,11 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
         for blur in (blur_levels(settings.coarse_blur_px) if r == 0 else (0.0,)) if tensors else ():
             tensors, losses = fit.descend(effects, tensors, masks, progress, label, blur)
             history += losses
+        for e, k in spread:
+            effects[e][k] = fit.search(effects, tensors, e, k)
+    if settings.facet_hops and "surface" in tensors and scene.heliostat.n_facets > 1:
+        tensors, losses = fit.hop(effects, tensors, masks, progress, label)
+        history += losses
         for e, k in spread:
             effects[e][k] = fit.search(effects, tensors, e, k)
     free = sum(int(m.sum()) for m in masks.values())
@@ -372,6 +391,29 @@ class _Fitter:
         optimizer.step(closure)
         bar.close()
         return {k: torch.where(masks[k], v.detach(), tensors[k]) for k, v in params.items()}, losses
+
+    def hop(self, effects: dict, tensors: dict, masks: dict, progress: bool, label: str) -> tuple[dict, list[float]]:
+        """`facet_hops` basin hops (module docstring); returns (tensors, the kept loss after each hop).
+        A block is a random facet and its nearest neighbours by centre distance (HOP_BLOCK_SIZES
+        facets in all); its control heights are set to 0 and its tilts to the mean tilt."""
+        centres = self.scene.heliostat.facet_translation
+        generator = torch.Generator().manual_seed(self.settings.hop_seed)
+        best, losses = self.loss(effects, tensors), []
+        for i in range(self.settings.facet_hops):
+            facet = int(torch.randint(len(centres), (1,), generator=generator))
+            size = HOP_BLOCK_SIZES[int(torch.randint(len(HOP_BLOCK_SIZES), (1,), generator=generator))]
+            block = (centres - centres[facet]).norm(dim=1).argsort()[:size]
+            trial = {k: v.clone() for k, v in tensors.items()}
+            trial["surface"][block] = 0.0
+            if "canting" in trial:
+                trial["canting"][block] = trial["canting"].mean(0)
+            for blur in HOP_BLURS_PX:
+                trial, _ = self.descend(effects, trial, masks, progress, f"{label} (hop {i + 1})", blur)
+            loss = self.loss(effects, trial)
+            if loss < best:
+                tensors, best = trial, loss
+            losses.append(best)
+        return tensors, losses
 
     def gauss_newton(self, effects: dict, tensors: dict, masks: dict) -> tuple[dict, list[float]]:
         """`gauss_newton_steps` Gauss-Newton steps on the free tensor entries; returns (tensors,
