@@ -94,9 +94,10 @@ def test_gauss_newton_recovers_tracking_errors_from_a_single_azimuth_scan():
     assert all(b < a for a, b in zip(polish, polish[1:])), polish
 
 
-def test_a_negative_gauss_newton_step_count_is_a_config_error():
-    with pytest.raises(ConfigError, match=r"gauss_newton_steps = -1: expected an integer >= 0"):
-        PhysicsConfig(effects={"sunshape": BUIE}, gauss_newton_steps=-1)
+@pytest.mark.parametrize("key", ["gauss_newton_steps", "facet_hops"])
+def test_a_negative_step_or_hop_count_is_a_config_error(key):
+    with pytest.raises(ConfigError, match=rf"{key} = -1: expected an integer >= 0"):
+        PhysicsConfig(effects={"sunshape": BUIE}, **{key: -1})
 
 
 @pytest.mark.slow
