@@ -162,7 +162,7 @@ def test_coarse_to_fine_blur_levels_halve_down_to_one_pixel_then_sharp():
 @pytest.mark.slow
 def test_a_facet_hop_refits_a_facet_left_in_a_wrong_basin():
     """2 x 2 facets with true surfaces; the fit starts with facet 0's heights negated (a wrong
-    basin). L-BFGS from there leaves it wrong; the first hop's block is facet 0 (seed 0), which it
+    basin). L-BFGS from there leaves it wrong; the first hop's block is facet 0 (the hops' fixed seed), which it
     resets and refits; the second hop's (facet 1, already right) must not make the kept loss rise."""
     s = scene(2, 2)
     truth = without_planes(torch.randn(4, 5, 5, generator=torch.Generator().manual_seed(5))) * 0.5
@@ -171,11 +171,14 @@ def test_a_facet_hop_refits_a_facet_left_in_a_wrong_basin():
     effects = {"sunshape": BUIE, "surface": {"control_heights_mm": "fit"}}
     start = truth.clone()
     start[0] = -truth[0]
-    fit = _Fitter(s, data, data.images, FitSettings(steps=40, facet_hops=2, hop_seed=0), [])
+    fit = _Fitter(s, data, data.images, FitSettings(steps=40, facet_hops=2), [])
     masks = {"surface": torch.ones_like(truth, dtype=torch.bool)}
     stuck, _ = fit.descend(effects, {"surface": start}, masks, False, "descent")
     hopped, losses = fit.hop(effects, stuck, masks, False, "hops")
-    error = lambda t: float((t["surface"][0] - truth[0]).norm() / truth[0].norm())
+
+    def error(t: dict) -> float:
+        return float((t["surface"][0] - truth[0]).norm() / truth[0].norm())
+
     assert error(stuck) > 0.5
     assert error(hopped) < 0.1
     assert all(b <= a for a, b in zip([fit.loss(effects, stuck)] + losses, losses))

@@ -235,7 +235,6 @@ class FitSettings:
             where they belong.
         facet_hops: basin hops after the rounds for a surface fitted on several facets (module
             docstring); 0 = none. Each costs the traces of len(HOP_BLURS_PX) descents.
-        hop_seed: seeds the blocks the hops pick.
         gauss_newton_steps: Gauss-Newton steps after the rounds (module docstring); 0 = none.
         gauss_newton_max_parameters: the steps run only when at most this many tensor entries
             are free (each step traces twice per entry).
@@ -248,7 +247,6 @@ class FitSettings:
     loss: str = "absolute"
     coarse_blur_px: float = 0.0
     facet_hops: int = 0
-    hop_seed: int = 0
     gauss_newton_steps: int = 0
     gauss_newton_max_parameters: int = 64
 
@@ -392,12 +390,14 @@ class _Fitter:
         bar.close()
         return {k: torch.where(masks[k], v.detach(), tensors[k]) for k, v in params.items()}, losses
 
-    def hop(self, effects: dict, tensors: dict, masks: dict, progress: bool, label: str) -> tuple[dict, list[float]]:
+    def hop(self, effects: dict, tensors: dict, masks: dict, progress: bool,
+            label: str) -> tuple[dict, list[float]]:
         """`facet_hops` basin hops (module docstring); returns (tensors, the kept loss after each hop).
         A block is a random facet and its nearest neighbours by centre distance (HOP_BLOCK_SIZES
-        facets in all); its control heights are set to 0 and its tilts to the mean tilt."""
+        facets in all; drawn from a generator seeded with 0, so a fit is repeatable); its control
+        heights are set to 0 and its tilts to the mean tilt."""
         centres = self.scene.heliostat.facet_translation
-        generator = torch.Generator().manual_seed(self.settings.hop_seed)
+        generator = torch.Generator().manual_seed(0)
         best, losses = self.loss(effects, tensors), []
         for i in range(self.settings.facet_hops):
             facet = int(torch.randint(len(centres), (1,), generator=generator))
@@ -421,10 +421,10 @@ class _Fitter:
         central differences of FD_STEPS, two traces per entry: the splatted images are rough on a
         finer scale (at the stalled sanity_check fit, autograd and 0.01 mrad differences differ by
         12 % in the tracking gradient and by a factor 5 along the flat valley). A step is halved
-        (down to 1/8) until the loss falls; when none does, the steps end. Directions the model cannot move (a facet's plane, the mean canting)
-        make the normal equations singular: a Levenberg damping of 1e-9 of their mean diagonal
-        keeps them solvable and takes no step along those directions. The surface penalty is left
-        out (far below the data term)."""
+        (down to 1/8) until the loss falls; when none does, the steps end. Directions the model
+        cannot move (a facet's plane, the mean canting) make the normal equations singular: a
+        Levenberg damping of 1e-9 of their mean diagonal keeps them solvable and takes no step
+        along those directions. The surface penalty is left out (far below the data term)."""
         free = [(k, tuple(i)) for k, m in masks.items() for i in m.nonzero().tolist()]
         current = {k: v.detach().clone() for k, v in tensors.items()}
         losses: list[float] = []
