@@ -94,7 +94,7 @@ def test_gauss_newton_recovers_tracking_errors_from_a_single_azimuth_scan():
     assert all(b < a for a, b in zip(polish, polish[1:])), polish
 
 
-@pytest.mark.parametrize("key", ["gauss_newton_steps", "facet_hops"])
+@pytest.mark.parametrize("key", ["gauss_newton_steps", "facet_hops", "facet_sweeps"])
 def test_a_negative_step_or_hop_count_is_a_config_error(key):
     with pytest.raises(ConfigError, match=rf"{key} = -1: expected an integer >= 0"):
         PhysicsConfig(effects={"sunshape": BUIE}, **{key: -1})
@@ -182,3 +182,41 @@ def test_a_facet_hop_refits_a_facet_left_in_a_wrong_basin():
     assert error(stuck) > 0.5
     assert error(hopped) < 0.1
     assert all(b <= a for a, b in zip([fit.loss(effects, stuck)] + losses, losses))
+
+
+def test_the_traces_of_a_heliostats_facets_add_up_to_its_trace():
+    s = scene(2, 2, dtype=torch.float64)
+    az, el = (a.double() for a in suns(6))
+    g = torch.Generator().manual_seed(6)
+    tensors = {"surface": without_planes(torch.randn(4, 5, 5, generator=g, dtype=torch.float64)),
+               "canting": torch.randn(4, 2, generator=g, dtype=torch.float64)}
+    world = {"sunshape": BUIE, "surface": {}, "canting": {}}
+    whole = s.simulate(world, tensors, az, el)
+    parts = s.simulate(world, tensors, az, el, facets=torch.tensor([2])) + \
+        s.simulate(world, tensors, az, el, facets=torch.tensor([0, 1, 3]))
+    torch.testing.assert_close(parts, whole, rtol=1e-9, atol=1e-9 * float(whole.max()))
+
+
+@pytest.mark.slow
+def test_a_facet_sweep_finds_the_basin_a_descent_from_the_current_state_misses():
+    """2 x 2 facets with true surfaces except facet 0, whose heights start negated (the others
+    held): L-BFGS from there goes further astray, while the sweep's restarts (from flat and from
+    random states) bring facet 0 back to the truth."""
+    s = scene(2, 2)
+    truth = without_planes(torch.randn(4, 5, 5, generator=torch.Generator().manual_seed(5))) * 0.5
+    data = measured(s, {"sunshape": BUIE, "surface": {}}, {"surface": truth})
+    effects = {"sunshape": BUIE, "surface": {"control_heights_mm": "fit"}}
+    start = truth.clone()
+    start[0] = -truth[0]
+    fit = _Fitter(s, data, data.images, FitSettings(steps=50), [])
+    masks = {"surface": torch.zeros_like(truth, dtype=torch.bool)}
+    masks["surface"][0] = True
+    descended, _ = fit.descend(effects, {"surface": start}, masks, False, "descent")
+    swept, losses = fit.sweep(effects, {"surface": start}, masks, torch.Generator().manual_seed(0), False, "")
+
+    def error(t: dict) -> float:
+        return float((t["surface"][0] - truth[0]).norm() / truth[0].norm())
+
+    assert error(descended) > 1.0
+    assert error(swept) < 0.01
+    assert losses == [fit.loss(effects, swept)]  # one facet refitted, its loss kept

@@ -48,7 +48,8 @@ class PhysicsConfig:
         cells_per_side: surface cells per facet side of the trace (fit and prediction).
         dataset_trace: the dataset's own trace settings ({"splat", "rays", ...}), from its
             attributes; a dataset traced with bilinear rays is fitted with `fit_rays` rays per
-            image (faster than kernel splatting for many facets) and predicted with its rays.
+            image (faster than kernel splatting for many facets), the fit ending on the noise-free
+            kernel trace it is predicted with (physics_fit module docstring).
         fit_rays: rays per image of a bilinear fit.
         coarse_blur_px: the first descents compare images blurred by a Gaussian of this std
             (pixels), then half of it, ..., then the sharp ones (physics_fit.blur_levels);
@@ -57,6 +58,8 @@ class PhysicsConfig:
             attributes): fit by shape, predict peak-normalised images (module docstring).
         facet_hops: basin hops after the rounds of a surface fit on several facets
             (physics_fit module docstring); 0 = none.
+        facet_sweeps: facet sweeps that end a surface fit on several facets (physics_fit module
+            docstring); 0 = none.
         gauss_newton_steps: Gauss-Newton steps that end a fit with at most 64 free tensor
             entries (physics_fit module docstring); 0 = none.
     """
@@ -76,6 +79,7 @@ class PhysicsConfig:
     coarse_blur_px: float = 0.0
     per_image_normalised: bool = False
     facet_hops: int = 0
+    facet_sweeps: int = 0
     gauss_newton_steps: int = 4
 
     def __post_init__(self):
@@ -83,7 +87,7 @@ class PhysicsConfig:
         for key in ("fit_steps", "fit_images", "cells_per_side", "rounds", "fit_rays"):
             if not (isinstance(getattr(self, key), int) and getattr(self, key) >= 1):
                 raise ConfigError(f"{key} = {getattr(self, key)!r}: expected an integer >= 1")
-        for key in ("facet_hops", "gauss_newton_steps"):
+        for key in ("facet_hops", "facet_sweeps", "gauss_newton_steps"):
             if not (isinstance(getattr(self, key), int) and getattr(self, key) >= 0):
                 raise ConfigError(f"{key} = {getattr(self, key)!r}: expected an integer >= 0")
 
@@ -138,9 +142,12 @@ class RaytraceModel(SpotModel):
         c = self.config
         settings = FitSettings(steps=c.fit_steps, rounds=c.rounds, coarse_blur_px=c.coarse_blur_px,
                                loss="shape" if c.per_image_normalised else "absolute",
-                               facet_hops=c.facet_hops, gauss_newton_steps=c.gauss_newton_steps)
-        self.fitted = fit_effects(self.scene(fitting=True), self.effects_to_fit(self.heliostat), measured, settings,
-                                  progress=True, label=f"fit {self.name}")
+                               facet_hops=c.facet_hops, facet_sweeps=c.facet_sweeps,
+                               gauss_newton_steps=c.gauss_newton_steps)
+        scene, predicting = self.scene(fitting=True), self.scene()
+        finish = predicting if predicting.splat != scene.splat else None
+        self.fitted = fit_effects(scene, self.effects_to_fit(self.heliostat), measured, settings,
+                                  progress=True, label=f"fit {self.name}", finish=finish)
         self.curve = [{"step": i, "loss": v} for i, v in enumerate(self.fitted.history)]
 
     def get_extra_state(self) -> dict:

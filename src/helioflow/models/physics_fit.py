@@ -27,6 +27,17 @@ result is kept when the loss falls. Neighbouring facets' images overlap, and a f
 facets ends where the neighbours' flux covers for a wrong facet; no descent leaves that minimum,
 but forgetting a block and fitting it again does (semi_sphere: README, "Physics models").
 
+A fit traced with bilinear rays (common random numbers: the same rays at every trace) has fitted
+the rays' noise along with the spots, so it ends on the noise-free kernel trace it predicts with
+(`finish`): one more descent there. Then, for a surface on several facets, `facet_sweeps` facet
+sweeps: each facet in turn, the one whose flux meets the most squared residual first, is refitted
+alone (its trace added to the held trace of the others, a trace F times cheaper than the
+heliostat's) from its current state, from flat and from random states; the start that ends
+lowest is kept when the heliostat's loss falls, and a descent of everything follows each sweep.
+A facet refitted alone among true neighbours comes back from flat to within a few percent of its
+heights; among fitted ones it finds the state that best complements them, which the descent of
+everything then carries further (semi_sphere: README, "Physics models").
+
 A fit with few free tensor entries (at most `gauss_newton_max_parameters`) ends with
 Gauss-Newton steps on them (`gauss_newton_steps`), then one more spread search. L-BFGS stops in
 long flat valleys: a single-azimuth scan turns the mirror about nearly one axis, so the elevation
@@ -61,6 +72,8 @@ TENSORS = {"tracking": "tracking", "canting": "facet_tilts_mrad", "surface": "co
 FD_STEPS = {"tracking": 0.01, "canting": 0.01, "surface": 0.002}  # central-difference steps (mrad, mrad, mm)
 HOP_BLURS_PX = (2.0, 0.0)  # blur levels of the descents after a basin hop
 HOP_BLOCK_SIZES = (1, 2, 4)  # facets a basin hop resets: a facet and its nearest neighbours
+SWEEP_STARTS = 6  # random starts per facet in a facet sweep, besides its current state and flat
+SWEEP_STEPS = 50  # traces of one facet per descent of a facet sweep
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 SEARCH_FLOOR = 0.02  # lowest value a spread scalar is searched from (its unit)
 SEARCH_CEILING = 20.0  # highest value a spread scalar is searched to
@@ -86,7 +99,8 @@ class Scene:
     cells_per_side: int = 16
 
     def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,
-                 seed: int = 0, with_lost: bool = False) -> Tensor | tuple[Tensor, Tensor]:
+                 seed: int = 0, with_lost: bool = False,
+                 facets: Tensor | None = None) -> Tensor | tuple[Tensor, Tensor]:
         """(N,) sun positions (deg) -> (N, H, W) images (W/m^2) under `effects` (numbers only for
         scalars) with the heliostat tensors in `tensors` ({"tracking": (5,) mrad, "canting": (F, 2)
         mrad, "surface": (F, C, C) mm}, each optional; "fit" entries of `effects` are taken from
@@ -94,7 +108,10 @@ class Scene:
 
         with_lost: also return (N,) the flux that missed the image (reflected towards the target
         plane but landing beside the image), as the sum of the pixels it would fill (times the
-        camera's gain): a shape comparison counts it as misplaced (see `normalised`)."""
+        camera's gain): a shape comparison counts it as misplaced (see `normalised`).
+
+        facets: (K,) long: trace only these facets (the tensors are still the whole heliostat's),
+        with K / F of the rays; their images add up to the heliostat's."""
         scalars = {e: {k: v for k, v in (p or {}).items() if v != FIT} for e, p in effects.items()}
         physics = resolve(scalars, self.heliostat, self.dni)
         h = physics.heliostat
@@ -104,9 +121,12 @@ class Scene:
             h = replace(h, canting_error=zero_mean(tensors["canting"]) * 1e-3)
         if "surface" in tensors:
             h = replace(h, control_heights=without_planes(tensors["surface"]) * 1e-3)
+        rays = self.rays
+        if facets is not None:
+            h, rays = h.facets(facets), max(1, self.rays * len(facets) // h.n_facets)
         sharp = physics.optics.sun.kind == "point" and physics.optics.slope_error == 0.0
         azimuth, elevation = torch.deg2rad(azimuth_deg), torch.deg2rad(elevation_deg)
-        traced = trace(h, self.target, azimuth, elevation, physics.optics, rays=self.rays,
+        traced = trace(h, self.target, azimuth, elevation, physics.optics, rays=rays,
                        splat="bilinear" if sharp else self.splat, cells_per_side=self.cells_per_side, seed=seed,
                        with_launched=with_lost)
         flux, launched = traced if with_lost else (traced, None)
@@ -235,6 +255,9 @@ class FitSettings:
             where they belong.
         facet_hops: basin hops after the rounds for a surface fitted on several facets (module
             docstring); 0 = none. Each costs the traces of len(HOP_BLURS_PX) descents.
+        facet_sweeps: facet sweeps after the hops, each followed by a descent of everything (module
+            docstring); 0 = none. Each costs (SWEEP_STARTS + 2) * len(HOP_BLURS_PX) * SWEEP_STEPS
+            traces of one facet per facet, about as many traces of the heliostat.
         gauss_newton_steps: Gauss-Newton steps after the rounds (module docstring); 0 = none.
         gauss_newton_max_parameters: the steps run only when at most this many tensor entries
             are free (each step traces twice per entry).
@@ -247,13 +270,15 @@ class FitSettings:
     loss: str = "absolute"
     coarse_blur_px: float = 0.0
     facet_hops: int = 0
+    facet_sweeps: int = 0
     gauss_newton_steps: int = 0
     gauss_newton_max_parameters: int = 64
 
 
 def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSettings = FitSettings(),
-                progress: bool = False, label: str = "fit") -> FitResult:
-    """Fit every "fit" parameter of `effects` to the measured spots; see the module docstring."""
+                progress: bool = False, label: str = "fit", finish: Scene | None = None) -> FitResult:
+    """Fit every "fit" parameter of `effects` to the measured spots; see the module docstring.
+    `finish`: the noise-free (kernel) scene the fit ends on when `scene` traces rays."""
     effects = {e: dict(p or {}) for e, p in effects.items()}
     pairs = fitted_parameters(effects)
     linear = [p for p in pairs if p in SCALES or p in OFFSETS]
@@ -274,31 +299,53 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
         if len(tensors) > 1:
             tensors, losses = fit.descend(effects, tensors, rigid, progress, label + " (rigid)")
             history += losses
-        for e, k in spread:
-            effects[e][k] = fit.search(effects, tensors, e, k)
+        search_spreads(fit, effects, tensors, spread)
     rounds = settings.rounds if (tensors and spread) else 1
     for r in range(rounds):
         for blur in (blur_levels(settings.coarse_blur_px) if r == 0 else (0.0,)) if tensors else ():
             tensors, losses = fit.descend(effects, tensors, masks, progress, label, blur)
             history += losses
-        for e, k in spread:
-            effects[e][k] = fit.search(effects, tensors, e, k)
+        search_spreads(fit, effects, tensors, spread)
     if settings.facet_hops and "surface" in tensors and scene.heliostat.n_facets > 1:
         tensors, losses = fit.hop(effects, tensors, masks, progress, label)
         history += losses
-        for e, k in spread:
-            effects[e][k] = fit.search(effects, tensors, e, k)
+        search_spreads(fit, effects, tensors, spread)
+    if finish is not None and tensors:
+        fit = _Fitter(finish, data, target, settings, linear)
+        tensors, losses = fit.descend(effects, tensors, masks, progress, label + " (noise-free)")
+        history += losses
+        search_spreads(fit, effects, tensors, spread)
+    if settings.facet_sweeps and "surface" in tensors and scene.heliostat.n_facets > 1:
+        generator = torch.Generator().manual_seed(0)
+        for _ in range(settings.facet_sweeps):
+            tensors, losses = fit.sweep(effects, tensors, masks, generator, progress, label)
+            history += losses
+            tensors, losses = fit.descend(effects, tensors, masks, progress, label)
+            history += losses
+            search_spreads(fit, effects, tensors, spread)
     free = sum(int(m.sum()) for m in masks.values())
     if settings.gauss_newton_steps and 0 < free <= settings.gauss_newton_max_parameters:
         tensors, losses = fit.gauss_newton(effects, tensors, masks)
         history += losses
-        for e, k in spread:
-            effects[e][k] = fit.search(effects, tensors, e, k)
+        search_spreads(fit, effects, tensors, spread)
     history.append(fit.loss(effects, tensors))
     if linear:
         effects = fit.with_linear(effects, tensors)
     effective = {"tracking": lambda t: t, "canting": zero_mean, "surface": without_planes}
     return FitResult(effects, {k: effective[k](v.detach()) for k, v in tensors.items()}, history, pairs)
+
+
+def search_spreads(fit: _Fitter, effects: dict, tensors: dict, spread: list[tuple[str, str]]) -> None:
+    """Search every fitted spread scalar in turn (`_Fitter.search`), into `effects`."""
+    for e, k in spread:
+        effects[e][k] = fit.search(effects, tensors, e, k)
+
+
+def _only_facet(mask: Tensor, facet: int) -> Tensor:
+    """A (F, ...) mask of free entries with every facet but `facet` held."""
+    held = torch.zeros_like(mask)
+    held[facet] = mask[facet]
+    return held
 
 
 def blur_levels(coarse_px: float) -> tuple[float, ...]:
@@ -317,18 +364,27 @@ class _Fitter:
     def __init__(self, scene: Scene, data: Measurements, target: Tensor, settings: FitSettings, linear: list):
         self.scene, self.data, self.target, self.settings, self.linear = scene, data, target, settings, linear
 
-    def predict(self, effects: dict, tensors: dict) -> Tensor:
-        """Normalised prediction (N, H, W), linear scalars at their least-squares values."""
-        shape = self.settings.loss == "shape"  # only a shape comparison needs the flux beside the image
+    def traced(self, effects: dict, tensors: dict, facets: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """Images (N, H, W) and the flux beside them (N,) (zeros unless the loss is "shape", the only
+        one that needs it), both divided by the measurements' scale, of the whole heliostat or of
+        `facets` ((K,) long) alone, with the linear scalars neutral. Both add up over facets."""
+        shape = self.settings.loss == "shape"
         traced = self.scene.simulate(self._unit_linear(effects), tensors, self.data.azimuth_deg,
-                                     self.data.elevation_deg, with_lost=shape)
-        images, lost = traced if shape else (traced, None)
-        images = images / self.data.scale
+                                     self.data.elevation_deg, with_lost=shape, facets=facets)
+        images, lost = traced if shape else (traced, torch.zeros(len(traced)))
+        return images / self.data.scale, lost / self.data.scale
+
+    def predict(self, effects: dict, tensors: dict, facets: Tensor | None = None,
+                others: tuple[Tensor, Tensor] | None = None) -> Tensor:
+        """Normalised prediction (N, H, W), linear scalars at their least-squares values. With
+        `facets`, their trace plus `others` (the rest's `traced`, held) is the heliostat's."""
+        images, lost = self.traced(effects, tensors, facets)
+        if others is not None:
+            images, lost = images + others[0], lost + others[1]
         if self.linear:
             a, b = self._line(images.detach())
-            images = a * images + b
-            lost = None if lost is None else a * lost
-        return normalised(images, self.settings.loss, 1.0, None if lost is None else lost / self.data.scale)
+            images, lost = a * images + b, a * lost
+        return normalised(images, self.settings.loss, 1.0, lost)
 
     def loss(self, effects: dict, tensors: dict) -> float:
         with torch.no_grad():
@@ -356,17 +412,20 @@ class _Fitter:
                 fb = cost(b)
         return round(math.exp(a if fa < fb else b), 4)
 
-    def descend(self, effects: dict, tensors: dict, masks: dict, progress: bool, label: str, blur_px: float = 0.0):
+    def descend(self, effects: dict, tensors: dict, masks: dict, progress: bool, label: str,
+                blur_px: float = 0.0, steps: int | None = None, facets: Tensor | None = None,
+                others: tuple[Tensor, Tensor] | None = None) -> tuple[dict, list[float]]:
         """L-BFGS (strong-Wolfe line search) on the free entries of the heliostat tensors, at most
-        `steps` traces with gradient; returns (tensors, loss per trace). `blur_px` > 0 compares
-        the images blurred by a Gaussian of that std (pixels): a wider basin for a first pass.
+        `steps` (default the settings') traces with gradient; returns (tensors, loss per trace).
+        `blur_px` > 0 compares the images blurred by a Gaussian of that std (pixels): a wider basin
+        for a first pass. `facets` and `others` trace only those facets (see `predict`).
 
         The loss is smooth in the tensors and deterministic (kernel splatting, or bilinear rays
         with the same random numbers at every trace), which is what quasi-Newton steps need: on
         the 41-parameter sanity_check fit L-BFGS reaches a 5x lower loss (7 dB) than Adam did,
         in fewer traces (README, "Physics models")."""
         params = {k: v.clone().requires_grad_(True) for k, v in tensors.items()}
-        steps = self.settings.steps
+        steps = steps or self.settings.steps
         optimizer = torch.optim.LBFGS(list(params.values()), lr=1.0, max_iter=steps, max_eval=steps, history_size=30,
                                       line_search_fn="strong_wolfe", tolerance_grad=1e-12, tolerance_change=1e-16)
         losses: list[float] = []
@@ -377,7 +436,8 @@ class _Fitter:
         def closure() -> Tensor:
             optimizer.zero_grad()
             current = {k: torch.where(masks[k], v, tensors[k]) for k, v in params.items()}
-            loss = ((gaussian_blur(self.predict(effects, current), blur_px) - target) ** 2).mean()
+            predicted = self.predict(effects, current, facets, others)
+            loss = ((gaussian_blur(predicted, blur_px) - target) ** 2).mean()
             if "surface" in current:
                 loss = loss + self.settings.surface_weight * (current["surface"] ** 2).mean()
             loss.backward()
@@ -414,6 +474,58 @@ class _Fitter:
                 tensors, best = trial, loss
             losses.append(best)
         return tensors, losses
+
+    def sweep(self, effects: dict, tensors: dict, masks: dict, generator: torch.Generator, progress: bool,
+              label: str) -> tuple[dict, list[float]]:
+        """One facet sweep (module docstring): every facet, the one whose flux meets the largest
+        squared residual first (`residual_shares`), refitted alone from its current state, from flat
+        and from SWEEP_STARTS random states (heights and tilts drawn from `generator` with the fit's
+        own RMS); the start that ends lowest is kept when the whole heliostat's loss falls. Returns
+        (tensors, the kept loss after each facet)."""
+        n = self.scene.heliostat.n_facets
+        height_rms = float(without_planes(tensors["surface"]).pow(2).mean().sqrt())
+        tilt_rms = float(zero_mean(tensors["canting"]).pow(2).mean().sqrt()) if "canting" in tensors else 0.0
+        best, losses = self.loss(effects, tensors), []
+        order = self.residual_shares(effects, tensors).argsort(descending=True).tolist()
+        for facet in tqdm(order, desc=label + " (facet sweep)", disable=not progress, mininterval=2.0):
+            one, rest = torch.tensor([facet]), torch.tensor([f for f in range(n) if f != facet])
+            alone = {k: torch.zeros_like(m) if k == "tracking" else _only_facet(m, facet)
+                     for k, m in masks.items()}
+            if not any(m.any() for m in alone.values()):
+                continue  # nothing of this facet is fitted
+            with torch.no_grad():
+                others = self.traced(effects, tensors, rest)
+            starts = [tensors]
+            for draw in range(SWEEP_STARTS + 1):
+                start = {k: v.clone() for k, v in tensors.items()}
+                shape = start["surface"][facet].shape
+                start["surface"][facet] = 0.0 if draw == 0 else \
+                    without_planes(torch.randn((1, *shape), generator=generator) * height_rms)[0]
+                if "canting" in start and draw:
+                    start["canting"][facet] += torch.randn(2, generator=generator) * tilt_rms
+                starts.append(start)
+            ends = []
+            for start in starts:
+                for blur in HOP_BLURS_PX:
+                    start, _ = self.descend(effects, start, alone, False, "", blur, SWEEP_STEPS, one, others)
+                with torch.no_grad():
+                    fitted = self.predict(effects, start, one, others)
+                ends.append((float(((fitted - self.target) ** 2).mean()), start))
+            trial = min(ends, key=lambda e: e[0])[1]
+            loss = self.loss(effects, trial)
+            if loss < best:
+                tensors, best = trial, loss
+            losses.append(best)
+        return tensors, losses
+
+    def residual_shares(self, effects: dict, tensors: dict) -> Tensor:
+        """(F,) each facet's share of the squared residual: the residual in every pixel split between
+        the facets in proportion to their flux there."""
+        with torch.no_grad():
+            residual = (self.predict(effects, tensors) - self.target) ** 2
+            parts = torch.stack([self.traced(effects, tensors, torch.tensor([f]))[0]
+                                 for f in range(self.scene.heliostat.n_facets)])
+            return (residual * parts / parts.sum(0).clamp_min(1e-30)).sum((1, 2, 3))
 
     def gauss_newton(self, effects: dict, tensors: dict, masks: dict) -> tuple[dict, list[float]]:
         """`gauss_newton_steps` Gauss-Newton steps on the free tensor entries; returns (tensors,

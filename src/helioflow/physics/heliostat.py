@@ -78,6 +78,12 @@ class Heliostat:
             tracking_error=torch.zeros_like(self.tracking_error),
         )
 
+    def facets(self, index: Tensor) -> Heliostat:
+        """The heliostat with only the facets in `index` ((K,) long), on the same mount: their
+        flux alone (a heliostat's facets neither shade nor block each other in this model)."""
+        per_facet = ("facet_translation", "facet_size", "facet_normal", "control_heights", "canting_error")
+        return replace(self, **{k: getattr(self, k)[index] for k in per_facet})
+
     def to(self, device, dtype=torch.float32) -> Heliostat:
         fields = {k: v.to(device=device, dtype=dtype) for k, v in vars(self).items() if isinstance(v, Tensor)}
         return replace(self, **fields)
