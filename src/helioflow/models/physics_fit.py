@@ -31,9 +31,10 @@ A fit traced with bilinear rays (common random numbers: the same rays at every t
 the rays' noise along with the spots, so it ends on the noise-free kernel trace it predicts with
 (`finish`): one more descent there. Then, for a surface on several facets, `facet_sweeps` facet
 sweeps: each facet in turn, the one whose flux meets the most squared residual first, is refitted
-alone (its trace added to the held trace of the others, a trace F times cheaper than the
-heliostat's) from its current state, from flat and from random states; the start that ends
-lowest is kept when the heliostat's loss falls, and a descent of everything follows each sweep.
+alone (its trace added to the held trace of the others; with gradient 0.02 s against 0.26 s for
+the heliostat's on semi_sphere) from its current state, from flat and from random states; the
+start that ends lowest is kept when the heliostat's loss falls, and a descent of everything
+follows each sweep.
 A facet refitted alone among true neighbours comes back from flat to within a few percent of its
 heights; among fitted ones it finds the state that best complements them, which the descent of
 everything then carries further (semi_sphere: README, "Physics models").
@@ -257,7 +258,7 @@ class FitSettings:
             docstring); 0 = none. Each costs the traces of len(HOP_BLURS_PX) descents.
         facet_sweeps: facet sweeps after the hops, each followed by a descent of everything (module
             docstring); 0 = none. Each costs (SWEEP_STARTS + 2) * len(HOP_BLURS_PX) * SWEEP_STEPS
-            traces of one facet per facet, about as many traces of the heliostat.
+            traces of one facet for every facet, plus that descent.
         gauss_newton_steps: Gauss-Newton steps after the rounds (module docstring); 0 = none.
         gauss_newton_max_parameters: the steps run only when at most this many tensor entries
             are free (each step traces twice per entry).
