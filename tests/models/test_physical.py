@@ -153,6 +153,14 @@ def test_a_point_sun_without_slope_error_is_traced_with_rays():
     assert images.shape == (3, 32, 32) and torch.isfinite(images).all() and images.sum() > 0
 
 
+def test_only_a_kernel_trace_of_a_sun_with_spread_is_noise_free():
+    """The fit's noise-free finish needs kernels; a point sun without slope error is traced with rays."""
+    point = {"sunshape": {"kind": "point"}}
+    assert scene().noise_free({**point, "slope_error": {"sigma_mrad": 0.3}})
+    assert not scene().noise_free(point)
+    assert not replace(scene(), splat="bilinear").noise_free({"sunshape": BUIE})
+
+
 def test_coarse_to_fine_blur_levels_halve_down_to_one_pixel_then_sharp():
     assert blur_levels(4.0) == (4.0, 2.0, 1.0, 0.0)
     assert blur_levels(3.0) == (3.0, 1.5, 0.0)

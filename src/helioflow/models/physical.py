@@ -144,10 +144,8 @@ class RaytraceModel(SpotModel):
                                loss="shape" if c.per_image_normalised else "absolute",
                                facet_hops=c.facet_hops, facet_sweeps=c.facet_sweeps,
                                gauss_newton_steps=c.gauss_newton_steps)
-        scene, predicting = self.scene(fitting=True), self.scene()
-        finish = predicting if predicting.splat != scene.splat else None
-        self.fitted = fit_effects(scene, self.effects_to_fit(self.heliostat), measured, settings,
-                                  progress=True, label=f"fit {self.name}", finish=finish)
+        self.fitted = fit_effects(self.scene(fitting=True), self.effects_to_fit(self.heliostat), measured,
+                                  settings, progress=True, label=f"fit {self.name}", finish=self.scene())
         self.curve = [{"step": i, "loss": v} for i, v in enumerate(self.fitted.history)]
 
     def get_extra_state(self) -> dict:

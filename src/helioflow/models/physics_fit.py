@@ -113,8 +113,7 @@ class Scene:
 
         facets: (K,) long: trace only these facets (the tensors are still the whole heliostat's),
         with K / F of the rays; their images add up to the heliostat's."""
-        scalars = {e: {k: v for k, v in (p or {}).items() if v != FIT} for e, p in effects.items()}
-        physics = resolve(scalars, self.heliostat, self.dni)
+        physics = self._physics(effects)
         h = physics.heliostat
         if "tracking" in tensors:
             h = replace(h, tracking_error=tensors["tracking"] * 1e-3)
@@ -125,10 +124,9 @@ class Scene:
         rays = self.rays
         if facets is not None:
             h, rays = h.facets(facets), max(1, self.rays * len(facets) // h.n_facets)
-        sharp = physics.optics.sun.kind == "point" and physics.optics.slope_error == 0.0
         azimuth, elevation = torch.deg2rad(azimuth_deg), torch.deg2rad(elevation_deg)
         traced = trace(h, self.target, azimuth, elevation, physics.optics, rays=rays,
-                       splat="bilinear" if sharp else self.splat, cells_per_side=self.cells_per_side, seed=seed,
+                       splat=self._splat(physics.optics), cells_per_side=self.cells_per_side, seed=seed,
                        with_launched=with_lost)
         flux, launched = traced if with_lost else (traced, None)
         images = physics.camera.apply(flux) if physics.camera is not None else flux
@@ -136,6 +134,20 @@ class Scene:
             return images
         gain = physics.camera.gain if physics.camera is not None else 1.0
         return images, (launched / self.target.pixel_area - flux.sum((-2, -1))).clamp_min(0.0) * gain
+
+    def noise_free(self, effects: dict) -> bool:
+        """Whether `simulate` traces `effects` with kernels: the expected images, no ray noise."""
+        return self._splat(self._physics(effects).optics) == "kernel"
+
+    def _physics(self, effects: dict):
+        """The effects (their "fit" entries dropped) resolved on the design heliostat."""
+        scalars = {e: {k: v for k, v in (p or {}).items() if v != FIT} for e, p in effects.items()}
+        return resolve(scalars, self.heliostat, self.dni)
+
+    def _splat(self, optics) -> str:
+        """A point sun without slope error has no beam-spread kernel: it is traced with rays."""
+        sharp = optics.sun.kind == "point" and optics.slope_error == 0.0
+        return "bilinear" if sharp else self.splat
 
 
 def zero_mean(tilts: Tensor) -> Tensor:
@@ -279,7 +291,8 @@ class FitSettings:
 def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSettings = FitSettings(),
                 progress: bool = False, label: str = "fit", finish: Scene | None = None) -> FitResult:
     """Fit every "fit" parameter of `effects` to the measured spots; see the module docstring.
-    `finish`: the noise-free (kernel) scene the fit ends on when `scene` traces rays."""
+    `finish`: the scene the model predicts with; a fit that `scene` traces with rays ends on it
+    when it traces kernels (module docstring)."""
     effects = {e: dict(p or {}) for e, p in effects.items()}
     pairs = fitted_parameters(effects)
     linear = [p for p in pairs if p in SCALES or p in OFFSETS]
@@ -307,16 +320,17 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
             tensors, losses = fit.descend(effects, tensors, masks, progress, label, blur)
             history += losses
         search_spreads(fit, effects, tensors, spread)
-    if settings.facet_hops and "surface" in tensors and scene.heliostat.n_facets > 1:
+    many_facets = "surface" in tensors and scene.heliostat.n_facets > 1
+    if settings.facet_hops and many_facets:
         tensors, losses = fit.hop(effects, tensors, masks, progress, label)
         history += losses
         search_spreads(fit, effects, tensors, spread)
-    if finish is not None and tensors:
+    if finish is not None and tensors and finish.noise_free(effects) and not scene.noise_free(effects):
         fit = _Fitter(finish, data, target, settings, linear)
         tensors, losses = fit.descend(effects, tensors, masks, progress, label + " (noise-free)")
         history += losses
         search_spreads(fit, effects, tensors, spread)
-    if settings.facet_sweeps and "surface" in tensors and scene.heliostat.n_facets > 1:
+    if settings.facet_sweeps and many_facets:
         generator = torch.Generator().manual_seed(0)
         for _ in range(settings.facet_sweeps):
             tensors, losses = fit.sweep(effects, tensors, masks, generator, progress, label)
