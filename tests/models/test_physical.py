@@ -8,7 +8,8 @@ import torch
 
 from helioflow.errors import ConfigError
 from helioflow.models.physical import PhysicsConfig, drt_effects
-from helioflow.models.physics_fit import FitSettings, Measurements, Scene, _Fitter, blur_levels, fit_effects
+from helioflow.models.physics_fit import (FitSettings, Measurements, Scene, _Fitter, blur_levels,
+                                          facet_blocks, fit_effects)
 from helioflow.physics.heliostat import TRACKING_PARAMETERS, ideal_heliostat, without_planes
 from helioflow.physics.target import Target
 
@@ -94,7 +95,7 @@ def test_gauss_newton_recovers_tracking_errors_from_a_single_azimuth_scan():
     assert all(b < a for a, b in zip(polish, polish[1:])), polish
 
 
-@pytest.mark.parametrize("key", ["gauss_newton_steps", "facet_hops", "facet_sweeps"])
+@pytest.mark.parametrize("key", ["gauss_newton_steps", "facet_hops", "facet_sweeps", "block_trials"])
 def test_a_negative_step_or_hop_count_is_a_config_error(key):
     with pytest.raises(ConfigError, match=rf"{key} = -1: expected an integer >= 0"):
         PhysicsConfig(effects={"sunshape": BUIE}, **{key: -1})
@@ -190,6 +191,47 @@ def test_a_facet_hop_refits_a_facet_left_in_a_wrong_basin():
     assert error(stuck) > 0.5
     assert error(hopped) < 0.1
     assert all(b <= a for a, b in zip([fit.loss(effects, stuck)] + losses, losses))
+
+
+def test_facet_blocks_are_the_2x2_windows_of_the_facet_grid():
+    h = ideal_heliostat(rows=4, cols=6, width=0.8, height=0.6, gap=0.02)
+    blocks = facet_blocks(h.facet_translation)
+    assert len(blocks) == 3 * 5 and len({tuple(sorted(b.tolist())) for b in blocks}) == 15
+    for b in blocks:
+        span = h.facet_translation[b].amax(0) - h.facet_translation[b].amin(0)
+        assert span[:2].tolist() == pytest.approx([0.82, 0.62])
+    assert set(torch.cat(blocks).tolist()) == set(range(24))
+    square = ideal_heliostat(rows=2, cols=2).facet_translation
+    assert [b.tolist() for b in facet_blocks(square)] == [[0, 1, 2, 3]]
+    off_grid = h.facet_translation + torch.randn(24, 3, generator=torch.Generator().manual_seed(0)) * 0.05
+    blocks = facet_blocks(off_grid)  # not a grid: every facet with its 3 nearest neighbours
+    assert len(blocks) == 24 and all(b[0] == f and len(b) == 4 for f, b in enumerate(blocks))
+
+
+@pytest.mark.slow
+def test_a_block_trial_refits_neighbours_that_cover_for_each_other():
+    """2 x 3 facets with true surfaces except facets 0 and 1, which start negated, within the block of
+    facets 0, 1, 3, 4 (only that block free): a descent leaves them wrong; the block trial (from random
+    states through wide blur) brings them back."""
+    s = scene(2, 3)
+    truth = without_planes(torch.randn(6, 5, 5, generator=torch.Generator().manual_seed(5))) * 0.5
+    data = measured(s, {"sunshape": BUIE, "surface": {}}, {"surface": truth})
+    effects = {"sunshape": BUIE, "surface": {"control_heights_mm": "fit"}}
+    start = truth.clone()
+    start[:2] = -truth[:2]
+    fit = _Fitter(s, data, data.images, FitSettings(steps=50, block_trials=1), [])
+    masks = {"surface": torch.zeros_like(truth, dtype=torch.bool)}
+    masks["surface"][[0, 1, 3, 4]] = True
+    descended, _ = fit.descend(effects, {"surface": start}, masks, False, "descent")
+    generator = torch.Generator().manual_seed(0)
+    tried, losses = fit.block_trials(effects, {"surface": start}, masks, generator, False, "")
+
+    def error(t: dict) -> float:
+        return float((t["surface"][:2] - truth[:2]).norm() / truth[:2].norm())
+
+    assert error(descended) > 0.5
+    assert error(tried) < 0.05
+    assert losses == [fit.loss(effects, tried)]
 
 
 def test_the_traces_of_a_heliostats_facets_add_up_to_its_trace():

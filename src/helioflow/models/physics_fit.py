@@ -39,6 +39,14 @@ A facet refitted alone among true neighbours comes back from flat to within a fe
 heights; among fitted ones it finds the state that best complements them, which the descent of
 everything then carries further (semi_sphere: README, "Physics models").
 
+Then `block_trials` block trials: the 2 x 2 block of neighbouring facets whose flux meets the most
+squared residual (not tried before) is refitted alone from random states through wide blur
+(TRIAL_BLURS_PX), the lowest end point kept when the heliostat's loss falls, and everything is
+descended again. Neighbours cover for each other's wrong state, so a facet refitted alone returns
+to the state that complements them; a block refitted together can leave that state, and once one
+block is right the descent of everything carries its neighbours towards the truth (semi_sphere:
+README, "Physics models").
+
 A fit with few free tensor entries (at most `gauss_newton_max_parameters`) ends with
 Gauss-Newton steps on them (`gauss_newton_steps`), then one more spread search. L-BFGS stops in
 long flat valleys: a single-azimuth scan turns the mirror about nearly one axis, so the elevation
@@ -75,6 +83,9 @@ HOP_BLURS_PX = (2.0, 0.0)  # blur levels of the descents after a basin hop
 HOP_BLOCK_SIZES = (1, 2, 4)  # facets a basin hop resets: a facet and its nearest neighbours
 SWEEP_STARTS = 6  # random starts per facet in a facet sweep, besides its current state and flat
 SWEEP_STEPS = 50  # traces of one facet per descent of a facet sweep
+TRIAL_BLURS_PX = (8.0, 4.0, 2.0, 1.0, 0.0)  # blur levels of a block trial's descents from a random state
+TRIAL_STARTS = 8  # random states per block trial
+TRIAL_STEPS = 60  # traces of the block per descent of a block trial
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 SEARCH_FLOOR = 0.02  # lowest value a spread scalar is searched from (its unit)
 SEARCH_CEILING = 20.0  # highest value a spread scalar is searched to
@@ -271,6 +282,9 @@ class FitSettings:
         facet_sweeps: facet sweeps after the hops, each followed by a descent of everything (module
             docstring); 0 = none. Each costs (SWEEP_STARTS + 2) * len(HOP_BLURS_PX) * SWEEP_STEPS
             traces of one facet for every facet, plus that descent.
+        block_trials: block trials after the sweeps (module docstring); 0 = none. Each costs
+            TRIAL_STARTS * len(TRIAL_BLURS_PX) * TRIAL_STEPS traces of its 4 facets, plus a descent of
+            everything when its block is kept.
         gauss_newton_steps: Gauss-Newton steps after the rounds (module docstring); 0 = none.
         gauss_newton_max_parameters: the steps run only when at most this many tensor entries
             are free (each step traces twice per entry).
@@ -284,6 +298,7 @@ class FitSettings:
     coarse_blur_px: float = 0.0
     facet_hops: int = 0
     facet_sweeps: int = 0
+    block_trials: int = 0
     gauss_newton_steps: int = 0
     gauss_newton_max_parameters: int = 64
 
@@ -330,14 +345,18 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
         tensors, losses = fit.descend(effects, tensors, masks, progress, label + " (noise-free)")
         history += losses
         search_spreads(fit, effects, tensors, spread)
+    generator = torch.Generator().manual_seed(0)  # the sweeps' and block trials' random states
     if settings.facet_sweeps and many_facets:
-        generator = torch.Generator().manual_seed(0)
         for _ in range(settings.facet_sweeps):
             tensors, losses = fit.sweep(effects, tensors, masks, generator, progress, label)
             history += losses
             tensors, losses = fit.descend(effects, tensors, masks, progress, label)
             history += losses
             search_spreads(fit, effects, tensors, spread)
+    if settings.block_trials and many_facets:
+        tensors, losses = fit.block_trials(effects, tensors, masks, generator, progress, label)
+        history += losses
+        search_spreads(fit, effects, tensors, spread)
     free = sum(int(m.sum()) for m in masks.values())
     if settings.gauss_newton_steps and 0 < free <= settings.gauss_newton_max_parameters:
         tensors, losses = fit.gauss_newton(effects, tensors, masks)
@@ -356,11 +375,26 @@ def search_spreads(fit: _Fitter, effects: dict, tensors: dict, spread: list[tupl
         effects[e][k] = fit.search(effects, tensors, e, k)
 
 
-def _only_facet(mask: Tensor, facet: int) -> Tensor:
-    """A (F, ...) mask of free entries with every facet but `facet` held."""
+def _only_facets(mask: Tensor, facets: Tensor) -> Tensor:
+    """A (F, ...) mask of free entries with every facet but `facets` ((K,) long) held."""
     held = torch.zeros_like(mask)
-    held[facet] = mask[facet]
+    held[facets] = mask[facets]
     return held
+
+
+def facet_blocks(centres: Tensor) -> list[Tensor]:
+    """Blocks of neighbouring facets, (4,) long each, from the facet centres (F, 3) (m): every 2 x 2
+    window of the facet grid (rows by y, columns by x, to the millimetre); for facets not on a full
+    grid, every facet with its 3 nearest neighbours; one block of all facets when there are at most 4."""
+    if len(centres) <= 4:
+        return [torch.arange(len(centres))]
+    xs, col = torch.unique(torch.round(centres[:, 0] * 1e3), return_inverse=True)
+    ys, row = torch.unique(torch.round(centres[:, 1] * 1e3), return_inverse=True)
+    cell = {(int(r), int(c)): f for f, (r, c) in enumerate(zip(row, col))}
+    if len(cell) != len(centres) or len(xs) * len(ys) != len(centres) or min(len(xs), len(ys)) < 2:
+        return [(centres - c).norm(dim=1).argsort()[:4] for c in centres]
+    return [torch.tensor([cell[(r + i, c + j)] for i in (0, 1) for j in (0, 1)])
+            for r in range(len(ys) - 1) for c in range(len(xs) - 1)]
 
 
 def blur_levels(coarse_px: float) -> tuple[float, ...]:
@@ -504,34 +538,81 @@ class _Fitter:
         order = self.residual_shares(effects, tensors).argsort(descending=True).tolist()
         for facet in tqdm(order, desc=label + " (facet sweep)", disable=not progress, mininterval=2.0):
             one, rest = torch.tensor([facet]), torch.tensor([f for f in range(n) if f != facet])
-            alone = {k: torch.zeros_like(m) if k == "tracking" else _only_facet(m, facet)
+            alone = {k: torch.zeros_like(m) if k == "tracking" else _only_facets(m, one)
                      for k, m in masks.items()}
             if not any(m.any() for m in alone.values()):
                 continue  # nothing of this facet is fitted
             with torch.no_grad():
                 others = self.traced(effects, tensors, rest)
-            starts = [tensors]
-            for draw in range(SWEEP_STARTS + 1):
-                start = {k: v.clone() for k, v in tensors.items()}
-                shape = start["surface"][facet].shape
-                start["surface"][facet] = 0.0 if draw == 0 else \
-                    without_planes(torch.randn((1, *shape), generator=generator) * height_rms)[0]
-                if "canting" in start and draw:
-                    start["canting"][facet] += torch.randn(2, generator=generator) * tilt_rms
-                starts.append(start)
-            ends = []
-            for start in starts:
-                for blur in HOP_BLURS_PX:
-                    start, _ = self.descend(effects, start, alone, False, "", blur, SWEEP_STEPS, one, others)
-                with torch.no_grad():
-                    fitted = self.predict(effects, start, one, others)
-                ends.append((float(((fitted - self.target) ** 2).mean()), start))
+            starts = [tensors, {**tensors, "surface": tensors["surface"].clone()}]
+            starts[1]["surface"][facet] = 0.0
+            starts += [self._random_state(tensors, one, generator, height_rms, tilt_rms, True)
+                       for _ in range(SWEEP_STARTS)]
+            ends = [self._refit_alone(effects, start, alone, one, others, HOP_BLURS_PX, SWEEP_STEPS)
+                    for start in starts]
             trial = min(ends, key=lambda e: e[0])[1]
             loss = self.loss(effects, trial)
             if loss < best:
                 tensors, best = trial, loss
             losses.append(best)
         return tensors, losses
+
+    def block_trials(self, effects: dict, tensors: dict, masks: dict, generator: torch.Generator,
+                     progress: bool, label: str) -> tuple[dict, list[float]]:
+        """`block_trials` block trials (module docstring): each takes the block of neighbouring facets
+        (`facet_blocks`) whose facets' flux meets the most squared residual (`residual_shares`) among
+        those not tried yet, refits it alone from TRIAL_STARTS random states (heights and tilts drawn
+        from `generator` with the fit's own RMS) through the blur levels TRIAL_BLURS_PX, and keeps the
+        lowest end point when the whole heliostat's loss falls; a kept block is followed by a descent
+        of everything. Returns (tensors, the kept loss after each trial)."""
+        blocks = facet_blocks(self.scene.heliostat.facet_translation)
+        height_rms = float(without_planes(tensors["surface"]).pow(2).mean().sqrt())
+        tilt_rms = float(zero_mean(tensors["canting"]).pow(2).mean().sqrt()) if "canting" in tensors else 0.0
+        best, losses = self.loss(effects, tensors), []
+        for trial in range(min(self.settings.block_trials, len(blocks))):
+            shares = self.residual_shares(effects, tensors)
+            block = blocks.pop(int(torch.stack([shares[b].sum() for b in blocks]).argmax()))
+            rest = torch.tensor([f for f in range(self.scene.heliostat.n_facets) if f not in block.tolist()])
+            alone = {k: torch.zeros_like(m) if k == "tracking" else _only_facets(m, block)
+                     for k, m in masks.items()}
+            with torch.no_grad():
+                others = self.traced(effects, tensors, rest)
+            name = f"{label} (block trial {trial + 1})"
+            starts = (self._random_state(tensors, block, generator, height_rms, tilt_rms, False)
+                      for _ in range(TRIAL_STARTS))
+            ends = [self._refit_alone(effects, start, alone, block, others, TRIAL_BLURS_PX, TRIAL_STEPS)
+                    for start in tqdm(starts, desc=name, total=TRIAL_STARTS, disable=not progress,
+                                      mininterval=2.0)]
+            kept = min(ends, key=lambda e: e[0])[1]
+            if self.loss(effects, kept) < best:
+                tensors, _ = self.descend(effects, kept, masks, progress, name)
+                best = self.loss(effects, tensors)
+            losses.append(best)
+        return tensors, losses
+
+    def _random_state(self, tensors: dict, facets: Tensor, generator: torch.Generator, height_rms: float,
+                      tilt_rms: float, around_current_tilts: bool) -> dict:
+        """`tensors` with random control heights (plane-free, RMS `height_rms` mm) on `facets` ((K,)
+        long) and random tilts (RMS `tilt_rms` mrad) added to their current ones or, if not
+        `around_current_tilts`, to the mean tilt of the heliostat."""
+        state = {k: v.clone() for k, v in tensors.items()}
+        shape = state["surface"][facets].shape
+        state["surface"][facets] = without_planes(torch.randn(shape, generator=generator) * height_rms)
+        if "canting" in state:
+            centre = state["canting"][facets] if around_current_tilts else state["canting"].mean(0)
+            state["canting"][facets] = centre + torch.randn(len(facets), 2, generator=generator) * tilt_rms
+        return state
+
+    def _refit_alone(self, effects: dict, start: dict, masks: dict, facets: Tensor, others: tuple[Tensor, Tensor],
+                     blurs: tuple[float, ...], steps: int) -> tuple[float, dict]:
+        """(loss, tensors): `facets` ((K,) long) descended alone from `start` through the blur levels
+        `blurs`, `steps` traces each, with the others' `traced` held; the loss of the end point is
+        traced once more (L-BFGS's last evaluated point is not the one it returns)."""
+        for blur in blurs:
+            start, _ = self.descend(effects, start, masks, False, "", blur, steps, facets, others)
+        with torch.no_grad():
+            fitted = self.predict(effects, start, facets, others)
+        return float(((fitted - self.target) ** 2).mean()), start
 
     def residual_shares(self, effects: dict, tensors: dict) -> Tensor:
         """(F,) each facet's share of the squared residual: the residual in every pixel split between
