@@ -603,8 +603,9 @@ class _Fitter:
             state["canting"][facets] = centre + torch.randn(len(facets), 2, generator=generator) * tilt_rms
         return state
 
-    def _refit_alone(self, effects: dict, start: dict, masks: dict, facets: Tensor, others: tuple[Tensor, Tensor],
-                     blurs: tuple[float, ...], steps: int) -> tuple[float, dict]:
+    def _refit_alone(self, effects: dict, start: dict, masks: dict, facets: Tensor,
+                     others: tuple[Tensor, Tensor], blurs: tuple[float, ...],
+                     steps: int) -> tuple[float, dict]:
         """(loss, tensors): `facets` ((K,) long) descended alone from `start` through the blur levels
         `blurs`, `steps` traces each, with the others' `traced` held; the loss of the end point is
         traced once more (L-BFGS's last evaluated point is not the one it returns)."""
