@@ -564,7 +564,8 @@ class _Fitter:
         those not tried yet, refits it alone from TRIAL_STARTS random states (heights and tilts drawn
         from `generator` with the fit's own RMS) through the blur levels TRIAL_BLURS_PX, and keeps the
         lowest end point when the whole heliostat's loss falls; a kept block is followed by a descent
-        of everything. Returns (tensors, the kept loss after each trial)."""
+        of everything. A block with nothing free is passed over. Returns (tensors, the kept loss after
+        each trial)."""
         blocks = facet_blocks(self.scene.heliostat.facet_translation)
         height_rms = float(without_planes(tensors["surface"]).pow(2).mean().sqrt())
         tilt_rms = float(zero_mean(tensors["canting"]).pow(2).mean().sqrt()) if "canting" in tensors else 0.0
@@ -575,6 +576,9 @@ class _Fitter:
             rest = torch.tensor([f for f in range(self.scene.heliostat.n_facets) if f not in block.tolist()])
             alone = {k: torch.zeros_like(m) if k == "tracking" else _only_facets(m, block)
                      for k, m in masks.items()}
+            if not any(m.any() for m in alone.values()):
+                losses.append(best)
+                continue  # nothing of this block is fitted
             with torch.no_grad():
                 others = self.traced(effects, tensors, rest)
             name = f"{label} (block trial {trial + 1})"
