@@ -250,8 +250,8 @@ def initial_tensors(effects: dict, heliostat: Heliostat) -> tuple[dict[str, Tens
     tracking = effects.get("tracking")
     if tracking and any(v == FIT for v in tracking.values()):
         names = _tracking_names()
-        tensors["tracking"] = torch.tensor([0.0 if tracking.get(n, 0.0) == FIT else float(tracking.get(n, 0.0))
-                                            for n in names])
+        values = [tracking.get(n, 0.0) for n in names]
+        tensors["tracking"] = torch.tensor([0.0 if v == FIT else float(v) for v in values])
         masks["tracking"] = torch.tensor([tracking.get(n) == FIT for n in names])
     if (effects.get("canting") or {}).get("facet_tilts_mrad") == FIT:
         tensors["canting"] = torch.zeros(heliostat.n_facets, 2)
@@ -375,6 +375,14 @@ def search_spreads(fit: _Fitter, effects: dict, tensors: dict, spread: list[tupl
         effects[e][k] = fit.search(effects, tensors, e, k)
 
 
+def _state_rms(tensors: dict) -> tuple[float, float]:
+    """(height RMS (mm) of the plane-free control heights, RMS (mrad) of the tilts about their mean, or 0
+    without canting): the spread of a fitted state, from which random states are drawn."""
+    height_rms = float(without_planes(tensors["surface"]).pow(2).mean().sqrt())
+    tilt_rms = float(zero_mean(tensors["canting"]).pow(2).mean().sqrt()) if "canting" in tensors else 0.0
+    return height_rms, tilt_rms
+
+
 def _only_facets(mask: Tensor, facets: Tensor) -> Tensor:
     """A (F, ...) mask of free entries with every facet but `facets` ((K,) long) held."""
     held = torch.zeros_like(mask)
@@ -475,11 +483,12 @@ class _Fitter:
         in fewer traces (README, "Physics models")."""
         params = {k: v.clone().requires_grad_(True) for k, v in tensors.items()}
         steps = steps or self.settings.steps
-        optimizer = torch.optim.LBFGS(list(params.values()), lr=1.0, max_iter=steps, max_eval=steps, history_size=30,
-                                      line_search_fn="strong_wolfe", tolerance_grad=1e-12, tolerance_change=1e-16)
+        optimizer = torch.optim.LBFGS(list(params.values()), lr=1.0, max_iter=steps, max_eval=steps,
+                                      history_size=30, line_search_fn="strong_wolfe", tolerance_grad=1e-12,
+                                      tolerance_change=1e-16)
         losses: list[float] = []
-        bar = tqdm(total=steps, desc=label + (f" (blur {blur_px:g} px)" if blur_px else ""), disable=not progress,
-                   mininterval=2.0)
+        bar = tqdm(total=steps, desc=label + (f" (blur {blur_px:g} px)" if blur_px else ""),
+                   disable=not progress, mininterval=2.0)
         target = gaussian_blur(self.target, blur_px)
 
         def closure() -> Tensor:
@@ -529,26 +538,21 @@ class _Fitter:
         """One facet sweep (module docstring): every facet, the one whose flux meets the largest
         squared residual first (`residual_shares`), refitted alone from its current state, from flat
         and from SWEEP_STARTS random states (heights and tilts drawn from `generator` with the fit's
-        own RMS); the start that ends lowest is kept when the whole heliostat's loss falls. Returns
-        (tensors, the kept loss after each facet)."""
-        n = self.scene.heliostat.n_facets
-        height_rms = float(without_planes(tensors["surface"]).pow(2).mean().sqrt())
-        tilt_rms = float(zero_mean(tensors["canting"]).pow(2).mean().sqrt()) if "canting" in tensors else 0.0
+        own RMS); the start that ends lowest is kept when the whole heliostat's loss falls. A facet with
+        nothing free is passed over. Returns (tensors, the kept loss after each facet refitted)."""
+        height_rms, tilt_rms = _state_rms(tensors)
         best, losses = self.loss(effects, tensors), []
         order = self.residual_shares(effects, tensors).argsort(descending=True).tolist()
         for facet in tqdm(order, desc=label + " (facet sweep)", disable=not progress, mininterval=2.0):
-            one, rest = torch.tensor([facet]), torch.tensor([f for f in range(n) if f != facet])
-            alone = {k: torch.zeros_like(m) if k == "tracking" else _only_facets(m, one)
-                     for k, m in masks.items()}
-            if not any(m.any() for m in alone.values()):
+            one = torch.tensor([facet])
+            alone = self._alone(effects, tensors, masks, one)
+            if alone is None:
                 continue  # nothing of this facet is fitted
-            with torch.no_grad():
-                others = self.traced(effects, tensors, rest)
             starts = [tensors, {**tensors, "surface": tensors["surface"].clone()}]
             starts[1]["surface"][facet] = 0.0
             starts += [self._random_state(tensors, one, generator, height_rms, tilt_rms, True)
                        for _ in range(SWEEP_STARTS)]
-            ends = [self._refit_alone(effects, start, alone, one, others, HOP_BLURS_PX, SWEEP_STEPS)
+            ends = [self._refit_alone(effects, start, *alone, one, HOP_BLURS_PX, SWEEP_STEPS)
                     for start in starts]
             trial = min(ends, key=lambda e: e[0])[1]
             loss = self.loss(effects, trial)
@@ -564,27 +568,21 @@ class _Fitter:
         those not tried yet, refits it alone from TRIAL_STARTS random states (heights and tilts drawn
         from `generator` with the fit's own RMS) through the blur levels TRIAL_BLURS_PX, and keeps the
         lowest end point when the whole heliostat's loss falls; a kept block is followed by a descent
-        of everything. A block with nothing free is passed over. Returns (tensors, the kept loss after
-        each trial)."""
+        of everything. A block with nothing free is passed over (it counts as a trial). Returns (tensors,
+        the kept loss after each block refitted)."""
         blocks = facet_blocks(self.scene.heliostat.facet_translation)
-        height_rms = float(without_planes(tensors["surface"]).pow(2).mean().sqrt())
-        tilt_rms = float(zero_mean(tensors["canting"]).pow(2).mean().sqrt()) if "canting" in tensors else 0.0
+        height_rms, tilt_rms = _state_rms(tensors)
         best, losses = self.loss(effects, tensors), []
         for trial in range(min(self.settings.block_trials, len(blocks))):
             shares = self.residual_shares(effects, tensors)
             block = blocks.pop(int(torch.stack([shares[b].sum() for b in blocks]).argmax()))
-            rest = torch.tensor([f for f in range(self.scene.heliostat.n_facets) if f not in block.tolist()])
-            alone = {k: torch.zeros_like(m) if k == "tracking" else _only_facets(m, block)
-                     for k, m in masks.items()}
-            if not any(m.any() for m in alone.values()):
-                losses.append(best)
+            alone = self._alone(effects, tensors, masks, block)
+            if alone is None:
                 continue  # nothing of this block is fitted
-            with torch.no_grad():
-                others = self.traced(effects, tensors, rest)
             name = f"{label} (block trial {trial + 1})"
             starts = (self._random_state(tensors, block, generator, height_rms, tilt_rms, False)
                       for _ in range(TRIAL_STARTS))
-            ends = [self._refit_alone(effects, start, alone, block, others, TRIAL_BLURS_PX, TRIAL_STEPS)
+            ends = [self._refit_alone(effects, start, *alone, block, TRIAL_BLURS_PX, TRIAL_STEPS)
                     for start in tqdm(starts, desc=name, total=TRIAL_STARTS, disable=not progress,
                                       mininterval=2.0)]
             kept = min(ends, key=lambda e: e[0])[1]
@@ -607,12 +605,24 @@ class _Fitter:
             state["canting"][facets] = centre + torch.randn(len(facets), 2, generator=generator) * tilt_rms
         return state
 
-    def _refit_alone(self, effects: dict, start: dict, masks: dict, facets: Tensor,
-                     others: tuple[Tensor, Tensor], blurs: tuple[float, ...],
-                     steps: int) -> tuple[float, dict]:
+    def _alone(self, effects: dict, tensors: dict, masks: dict,
+               facets: Tensor) -> tuple[dict, tuple[Tensor, Tensor]] | None:
+        """(masks, others) to refit `facets` ((K,) long) alone: `masks` with every other facet and
+        the tracking held, and the other facets' `traced` (held); None when nothing of `facets` is free."""
+        alone = {k: torch.zeros_like(m) if k == "tracking" else _only_facets(m, facets)
+                 for k, m in masks.items()}
+        if not any(m.any() for m in alone.values()):
+            return None
+        rest = torch.tensor([f for f in range(self.scene.heliostat.n_facets) if f not in facets.tolist()])
+        with torch.no_grad():
+            return alone, self.traced(effects, tensors, rest)
+
+    def _refit_alone(self, effects: dict, start: dict, masks: dict, others: tuple[Tensor, Tensor],
+                     facets: Tensor, blurs: tuple[float, ...], steps: int) -> tuple[float, dict]:
         """(loss, tensors): `facets` ((K,) long) descended alone from `start` through the blur levels
-        `blurs`, `steps` traces each, with the others' `traced` held; the loss of the end point is
-        traced once more (L-BFGS's last evaluated point is not the one it returns)."""
+        `blurs`, `steps` traces each, with the others' `traced` held (`_alone` gives `masks` and
+        `others`); the loss of the end point is traced once more (L-BFGS's last evaluated point is not
+        the one it returns)."""
         for blur in blurs:
             start, _ = self.descend(effects, start, masks, False, "", blur, steps, facets, others)
         with torch.no_grad():
