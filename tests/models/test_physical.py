@@ -234,6 +234,30 @@ def test_a_block_trial_refits_neighbours_that_cover_for_each_other():
     assert losses == [fit.loss(effects, tried)]
 
 
+@pytest.mark.parametrize("kept", [True, False])
+def test_the_facet_sweeps_run_once_more_only_after_a_kept_block(monkeypatch, kept):
+    """A kept block changes the state its neighbours complement, so the sweeps run again; block trials
+    that keep nothing are the fit's last search."""
+    calls = []
+
+    def sweep(self, effects, tensors, masks, generator, progress, label):
+        calls.append("sweep")
+        return tensors, [self.loss(effects, tensors)]
+
+    def block_trials(self, effects, tensors, masks, generator, progress, label):
+        calls.append("block trials")
+        return tensors, [self.loss(effects, tensors) * (0.5 if kept else 1.0)]
+
+    monkeypatch.setattr(_Fitter, "sweep", sweep)
+    monkeypatch.setattr(_Fitter, "block_trials", block_trials)
+    s = scene(2, 2)
+    truth = without_planes(torch.randn(4, 5, 5, generator=torch.Generator().manual_seed(5))) * 0.5
+    data = measured(s, {"sunshape": BUIE, "surface": {}}, {"surface": truth})
+    effects = {"sunshape": BUIE, "surface": {"control_heights_mm": "fit"}}
+    fit_effects(s, effects, data, FitSettings(steps=2, facet_sweeps=1, block_trials=1))
+    assert calls == ["sweep", "block trials"] + (["sweep"] if kept else [])
+
+
 def test_the_traces_of_a_heliostats_facets_add_up_to_its_trace():
     s = scene(2, 2, dtype=torch.float64)
     az, el = (a.double() for a in suns(6))

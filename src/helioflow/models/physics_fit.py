@@ -44,7 +44,8 @@ squared residual (not tried before) is refitted alone from random states through
 (TRIAL_BLURS_PX), the lowest end point kept when the heliostat's loss falls, and everything is
 descended again. Neighbours cover for each other's wrong state, so a facet refitted alone returns
 to the state that complements them; a block refitted together can leave that state, and once one
-block is right the descent of everything carries its neighbours towards the truth (semi_sphere:
+block is right the descent of everything carries its neighbours towards the truth. When a block was
+kept, the facet sweeps run once more: the facets now complement other neighbours (semi_sphere:
 README, "Physics models").
 
 A fit with few free tensor entries (at most `gauss_newton_max_parameters`) ends with
@@ -284,7 +285,7 @@ class FitSettings:
             traces of one facet for every facet, plus that descent.
         block_trials: block trials after the sweeps (module docstring); 0 = none. Each costs
             TRIAL_STARTS * len(TRIAL_BLURS_PX) * TRIAL_STEPS traces of its 4 facets, plus a descent of
-            everything when its block is kept.
+            everything when its block is kept; the facet sweeps run once more when any block was.
         gauss_newton_steps: Gauss-Newton steps after the rounds (module docstring); 0 = none.
         gauss_newton_max_parameters: the steps run only when at most this many tensor entries
             are free (each step traces twice per entry).
@@ -346,17 +347,16 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
         history += losses
         search_spreads(fit, effects, tensors, spread)
     generator = torch.Generator().manual_seed(0)  # the sweeps' and block trials' random states
-    if settings.facet_sweeps and many_facets:
-        for _ in range(settings.facet_sweeps):
-            tensors, losses = fit.sweep(effects, tensors, masks, generator, progress, label)
-            history += losses
-            tensors, losses = fit.descend(effects, tensors, masks, progress, label)
-            history += losses
-            search_spreads(fit, effects, tensors, spread)
+    sweeps = settings.facet_sweeps if many_facets else 0
+    tensors = facet_sweeps(fit, effects, tensors, masks, generator, sweeps, spread, history, progress, label)
     if settings.block_trials and many_facets:
+        before = fit.loss(effects, tensors)
         tensors, losses = fit.block_trials(effects, tensors, masks, generator, progress, label)
         history += losses
         search_spreads(fit, effects, tensors, spread)
+        if losses and losses[-1] < before:  # a block was kept: its neighbours now complement another state
+            tensors = facet_sweeps(fit, effects, tensors, masks, generator, sweeps, spread, history, progress,
+                                   label)
     free = sum(int(m.sum()) for m in masks.values())
     if settings.gauss_newton_steps and 0 < free <= settings.gauss_newton_max_parameters:
         tensors, losses = fit.gauss_newton(effects, tensors, masks)
@@ -367,6 +367,20 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
         effects = fit.with_linear(effects, tensors)
     effective = {"tracking": lambda t: t, "canting": zero_mean, "surface": without_planes}
     return FitResult(effects, {k: effective[k](v.detach()) for k, v in tensors.items()}, history, pairs)
+
+
+def facet_sweeps(fit: _Fitter, effects: dict, tensors: dict, masks: dict, generator: torch.Generator,
+                 count: int, spread: list[tuple[str, str]], history: list[float], progress: bool,
+                 label: str) -> dict:
+    """`count` facet sweeps (`_Fitter.sweep`), each followed by a descent of everything and a search
+    of the spread scalars (into `effects`); their losses are appended to `history`. Returns tensors."""
+    for _ in range(count):
+        tensors, losses = fit.sweep(effects, tensors, masks, generator, progress, label)
+        history += losses
+        tensors, losses = fit.descend(effects, tensors, masks, progress, label)
+        history += losses
+        search_spreads(fit, effects, tensors, spread)
+    return tensors
 
 
 def search_spreads(fit: _Fitter, effects: dict, tensors: dict, spread: list[tuple[str, str]]) -> None:
