@@ -39,6 +39,19 @@ def measured(s: Scene, world: dict, tensors: dict | None = None, n: int = 12) ->
     return Measurements(images / scale, az, el, scale)
 
 
+def negated_facets(rows: int, cols: int,
+                   negated: int) -> tuple[Scene, torch.Tensor, Measurements, dict, torch.Tensor]:
+    """A surface-only problem on rows x cols facets: (scene, true control heights (F, 5, 5) mm,
+    plane-free, RMS about 0.5 mm, the images they make, the effect list that fits the surface, a start
+    that is the truth with the heights of the first `negated` facets negated)."""
+    s = scene(rows, cols)
+    truth = without_planes(torch.randn(rows * cols, 5, 5, generator=torch.Generator().manual_seed(5))) * 0.5
+    data = measured(s, {"sunshape": BUIE, "surface": {}}, {"surface": truth})
+    start = truth.clone()
+    start[:negated] = -truth[:negated]
+    return s, truth, data, {"sunshape": BUIE, "surface": {"control_heights_mm": "fit"}}, start
+
+
 @pytest.mark.parametrize("effect, shape", [("tracking", (len(TRACKING_PARAMETERS),)), ("canting", (4, 2)),
                                            ("surface", (4, 5, 5))])
 def test_gradients_through_each_heliostat_tensor_match_finite_differences(effect, shape):
@@ -77,8 +90,8 @@ def test_lbfgs_recovers_tracking_errors():
 def test_gauss_newton_recovers_tracking_errors_from_a_single_azimuth_scan():
     """Sun at one azimuth, elevation 5-85 deg: the elevation offset and the northward pedestal
     tilt move the spot almost alike (the sanity_check design). L-BFGS alone stops in that valley,
-    0.7 mrad from the truth; the Gauss-Newton steps after it recover all five parameters, and the
-    loss falls at every step."""
+    0.7 mrad from the truth; the Gauss-Newton steps after it recover all five parameters and cut the
+    loss by more than 1000x (a step is taken only when the loss falls; the last may find none to take)."""
     s = scene()
     truth = torch.tensor([-0.5, -1.6, 0.2, 0.1, -1.2])
     el = torch.linspace(5.0, 85.0, 16)
@@ -91,11 +104,11 @@ def test_gauss_newton_recovers_tracking_errors_from_a_single_azimuth_scan():
     assert (descent.tensors["tracking"] - truth).abs().max() > 0.5
     result = fit_effects(s, effects, data, FitSettings(steps=60, gauss_newton_steps=4))
     assert torch.allclose(result.tensors["tracking"], truth, atol=0.02), result.tensors["tracking"]
-    polish = result.history[-6:-1]  # the last L-BFGS loss, then the four Gauss-Newton losses
-    assert all(b < a for a, b in zip(polish, polish[1:])), polish
+    assert result.history[-1] < 1e-3 * descent.history[-1], (descent.history[-1], result.history[-1])
 
 
-@pytest.mark.parametrize("key", ["gauss_newton_steps", "facet_hops", "facet_sweeps", "block_trials"])
+@pytest.mark.parametrize("key", ["gauss_newton_steps", "facet_hops", "facet_sweeps", "block_trials",
+                                 "pinned_hops"])
 def test_a_negative_step_or_hop_count_is_a_config_error(key):
     with pytest.raises(ConfigError, match=rf"{key} = -1: expected an integer >= 0"):
         PhysicsConfig(effects={"sunshape": BUIE}, **{key: -1})
@@ -173,13 +186,7 @@ def test_a_facet_hop_refits_a_facet_left_in_a_wrong_basin():
     """2 x 2 facets with true surfaces; the fit starts with facet 0's heights negated (a wrong
     basin). L-BFGS from there leaves it wrong; the first hop's block is facet 0 (the hops' fixed seed), which it
     resets and refits; the second hop's (facet 1, already right) must not make the kept loss rise."""
-    s = scene(2, 2)
-    truth = without_planes(torch.randn(4, 5, 5, generator=torch.Generator().manual_seed(5))) * 0.5
-    world = {"sunshape": BUIE, "surface": {}}
-    data = measured(s, world, {"surface": truth})
-    effects = {"sunshape": BUIE, "surface": {"control_heights_mm": "fit"}}
-    start = truth.clone()
-    start[0] = -truth[0]
+    s, truth, data, effects, start = negated_facets(2, 2, 1)
     fit = _Fitter(s, data, data.images, FitSettings(steps=40, facet_hops=2), [])
     masks = {"surface": torch.ones_like(truth, dtype=torch.bool)}
     stuck, _ = fit.descend(effects, {"surface": start}, masks, False, "descent")
@@ -191,6 +198,38 @@ def test_a_facet_hop_refits_a_facet_left_in_a_wrong_basin():
     assert error(stuck) > 0.5
     assert error(hopped) < 0.1
     assert all(b <= a for a, b in zip([fit.loss(effects, stuck)] + losses, losses))
+
+
+def test_pinned_hops_bring_a_fit_whose_facets_cover_for_each_other_back_to_the_truth(monkeypatch):
+    """2 x 2 facets with true surfaces; the fit starts with facet 0's heights negated and a descent ends
+    with every facet wrong (the others cover for facet 0). Each pinned hop starts from the facet whose
+    flux meets the most residual (facet 0 first), descends the others with it flat and held, then
+    everything; the kept loss never rises, and the hops bring all facets to within 1 % of their heights
+    (a hop after the truth is reached may or may not be kept, depending on rounding)."""
+    s, truth, data, effects, start = negated_facets(2, 2, 1)
+    fit = _Fitter(s, data, data.images, FitSettings(steps=40, pinned_hops=4), [])
+    masks = {"surface": torch.ones_like(truth, dtype=torch.bool)}
+    stuck, _ = fit.descend(effects, {"surface": start}, masks, False, "descent")
+    starts = []
+    descend = _Fitter.descend
+
+    def recorded(self, effects, tensors, masks, *args, **kwargs):
+        starts.append((tensors["surface"][0].clone(), masks["surface"][0].any()))
+        return descend(self, effects, tensors, masks, *args, **kwargs)
+
+    monkeypatch.setattr(_Fitter, "descend", recorded)
+    hopped, losses = fit.pinned_hops(effects, stuck, masks, False, "pinned hops")
+
+    def errors(t: dict) -> torch.Tensor:
+        return (t["surface"] - truth).flatten(1).norm(dim=1) / truth.flatten(1).norm(dim=1)
+
+    assert errors(stuck).min() > 0.3
+    assert starts[0][0].abs().max() == 0.0 and not starts[0][1]  # facet 0 pinned flat
+    assert starts[1][1]  # then freed
+    assert errors(hopped).max() < 0.01, errors(hopped)
+    before = fit.loss(effects, stuck)
+    assert len(losses) == 4 and all(b <= a for a, b in zip([before] + losses, losses))
+    assert losses[-1] < 1e-3 * before
 
 
 def test_facet_blocks_are_the_2x2_windows_of_the_facet_grid():
@@ -213,12 +252,7 @@ def test_a_block_trial_refits_neighbours_that_cover_for_each_other():
     """2 x 3 facets with true surfaces except facets 0 and 1, which start negated, within the block of
     facets 0, 1, 3, 4 (only that block free): a descent leaves them wrong; the block trial (from random
     states through wide blur) brings them back."""
-    s = scene(2, 3)
-    truth = without_planes(torch.randn(6, 5, 5, generator=torch.Generator().manual_seed(5))) * 0.5
-    data = measured(s, {"sunshape": BUIE, "surface": {}}, {"surface": truth})
-    effects = {"sunshape": BUIE, "surface": {"control_heights_mm": "fit"}}
-    start = truth.clone()
-    start[:2] = -truth[:2]
+    s, truth, data, effects, start = negated_facets(2, 3, 2)
     fit = _Fitter(s, data, data.images, FitSettings(steps=50, block_trials=1), [])
     masks = {"surface": torch.zeros_like(truth, dtype=torch.bool)}
     masks["surface"][[0, 1, 3, 4]] = True
@@ -250,10 +284,7 @@ def test_the_facet_sweeps_run_once_more_only_after_a_kept_block(monkeypatch, kep
 
     monkeypatch.setattr(_Fitter, "sweep", sweep)
     monkeypatch.setattr(_Fitter, "block_trials", block_trials)
-    s = scene(2, 2)
-    truth = without_planes(torch.randn(4, 5, 5, generator=torch.Generator().manual_seed(5))) * 0.5
-    data = measured(s, {"sunshape": BUIE, "surface": {}}, {"surface": truth})
-    effects = {"sunshape": BUIE, "surface": {"control_heights_mm": "fit"}}
+    s, _, data, effects, _ = negated_facets(2, 2, 0)
     fit_effects(s, effects, data, FitSettings(steps=2, facet_sweeps=1, block_trials=1))
     assert calls == ["sweep", "block trials"] + (["sweep"] if kept else [])
 
@@ -276,12 +307,7 @@ def test_a_facet_sweep_finds_the_basin_a_descent_from_the_current_state_misses()
     """2 x 2 facets with true surfaces except facet 0, whose heights start negated (the others
     held): L-BFGS from there goes further astray, while the sweep's restarts (from flat and from
     random states) bring facet 0 back to the truth."""
-    s = scene(2, 2)
-    truth = without_planes(torch.randn(4, 5, 5, generator=torch.Generator().manual_seed(5))) * 0.5
-    data = measured(s, {"sunshape": BUIE, "surface": {}}, {"surface": truth})
-    effects = {"sunshape": BUIE, "surface": {"control_heights_mm": "fit"}}
-    start = truth.clone()
-    start[0] = -truth[0]
+    s, truth, data, effects, start = negated_facets(2, 2, 1)
     fit = _Fitter(s, data, data.images, FitSettings(steps=50), [])
     masks = {"surface": torch.zeros_like(truth, dtype=torch.bool)}
     masks["surface"][0] = True

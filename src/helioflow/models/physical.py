@@ -61,6 +61,7 @@ class PhysicsConfig:
         facet_sweeps: facet sweeps that end a surface fit on several facets (physics_fit module
             docstring); 0 = none.
         block_trials: block trials after the sweeps (physics_fit module docstring); 0 = none.
+        pinned_hops: pinned hops after the block trials (physics_fit module docstring); 0 = none.
         gauss_newton_steps: Gauss-Newton steps that end a fit with at most 64 free tensor
             entries (physics_fit module docstring); 0 = none.
     """
@@ -82,6 +83,7 @@ class PhysicsConfig:
     facet_hops: int = 0
     facet_sweeps: int = 0
     block_trials: int = 0
+    pinned_hops: int = 0
     gauss_newton_steps: int = 4
 
     def __post_init__(self):
@@ -89,7 +91,7 @@ class PhysicsConfig:
         for key in ("fit_steps", "fit_images", "cells_per_side", "rounds", "fit_rays"):
             if not (isinstance(getattr(self, key), int) and getattr(self, key) >= 1):
                 raise ConfigError(f"{key} = {getattr(self, key)!r}: expected an integer >= 1")
-        for key in ("facet_hops", "facet_sweeps", "block_trials", "gauss_newton_steps"):
+        for key in ("facet_hops", "facet_sweeps", "block_trials", "pinned_hops", "gauss_newton_steps"):
             if not (isinstance(getattr(self, key), int) and getattr(self, key) >= 0):
                 raise ConfigError(f"{key} = {getattr(self, key)!r}: expected an integer >= 0")
 
@@ -145,7 +147,8 @@ class RaytraceModel(SpotModel):
         settings = FitSettings(steps=c.fit_steps, rounds=c.rounds, coarse_blur_px=c.coarse_blur_px,
                                loss="shape" if c.per_image_normalised else "absolute",
                                facet_hops=c.facet_hops, facet_sweeps=c.facet_sweeps,
-                               block_trials=c.block_trials, gauss_newton_steps=c.gauss_newton_steps)
+                               block_trials=c.block_trials, pinned_hops=c.pinned_hops,
+                               gauss_newton_steps=c.gauss_newton_steps)
         self.fitted = fit_effects(self.scene(fitting=True), self.effects_to_fit(self.heliostat), measured,
                                   settings, progress=True, label=f"fit {self.name}", finish=self.scene())
         self.curve = [{"step": i, "loss": v} for i, v in enumerate(self.fitted.history)]

@@ -48,6 +48,14 @@ block is right the descent of everything carries its neighbours towards the trut
 kept, the facet sweeps run once more: the facets now complement other neighbours (semi_sphere:
 README, "Physics models").
 
+Then `pinned_hops` pinned hops: the facet whose flux meets the most squared residual (not tried
+before) is reset to flat and the mean tilt and pinned there while everything else descends, then
+everything descends (PIN_STEPS traces each); the result is kept when the loss falls. Neighbours
+cover for a wrong facet, so the facet's true state looks worse than its wrong one while they are
+held (the sweep and the block trials judge that way) and a hop that frees everything at once lets
+the facet slide back into the state they cover for; pinned flat, the facet makes its neighbours
+give up the cover first (semi_sphere: README, "Physics models").
+
 A fit with few free tensor entries (at most `gauss_newton_max_parameters`) ends with
 Gauss-Newton steps on them (`gauss_newton_steps`), then one more spread search. L-BFGS stops in
 long flat valleys: a single-azimuth scan turns the mirror about nearly one axis, so the elevation
@@ -87,6 +95,7 @@ SWEEP_STEPS = 50  # traces of one facet per descent of a facet sweep
 TRIAL_BLURS_PX = (8.0, 4.0, 2.0, 1.0, 0.0)  # blur levels of a block trial's descents from a random state
 TRIAL_STARTS = 8  # random states per block trial
 TRIAL_STEPS = 60  # traces of the block per descent of a block trial
+PIN_STEPS = 100  # traces of each of a pinned hop's two descents (the rest, then everything)
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 SEARCH_FLOOR = 0.02  # lowest value a spread scalar is searched from (its unit)
 SEARCH_CEILING = 20.0  # highest value a spread scalar is searched to
@@ -286,6 +295,8 @@ class FitSettings:
         block_trials: block trials after the sweeps (module docstring); 0 = none. Each costs
             TRIAL_STARTS * len(TRIAL_BLURS_PX) * TRIAL_STEPS traces of its 4 facets, plus a descent of
             everything when its block is kept; the facet sweeps run once more when any block was.
+        pinned_hops: pinned hops after the block trials (module docstring); 0 = none. Each costs
+            2 * PIN_STEPS traces of the heliostat.
         gauss_newton_steps: Gauss-Newton steps after the rounds (module docstring); 0 = none.
         gauss_newton_max_parameters: the steps run only when at most this many tensor entries
             are free (each step traces twice per entry).
@@ -300,6 +311,7 @@ class FitSettings:
     facet_hops: int = 0
     facet_sweeps: int = 0
     block_trials: int = 0
+    pinned_hops: int = 0
     gauss_newton_steps: int = 0
     gauss_newton_max_parameters: int = 64
 
@@ -357,6 +369,10 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
         if losses and losses[-1] < before:  # a block was kept: its neighbours now complement another state
             tensors = facet_sweeps(fit, effects, tensors, masks, generator, sweeps, spread, history, progress,
                                    label)
+    if settings.pinned_hops and many_facets:
+        tensors, losses = fit.pinned_hops(effects, tensors, masks, progress, label)
+        history += losses
+        search_spreads(fit, effects, tensors, spread)
     free = sum(int(m.sum()) for m in masks.values())
     if settings.gauss_newton_steps and 0 < free <= settings.gauss_newton_max_parameters:
         tensors, losses = fit.gauss_newton(effects, tensors, masks)
@@ -395,6 +411,16 @@ def _state_rms(tensors: dict) -> tuple[float, float]:
     height_rms = float(without_planes(tensors["surface"]).pow(2).mean().sqrt())
     tilt_rms = float(zero_mean(tensors["canting"]).pow(2).mean().sqrt()) if "canting" in tensors else 0.0
     return height_rms, tilt_rms
+
+
+def _flattened(tensors: dict, facets: Tensor) -> dict:
+    """A copy of `tensors` with the control heights of `facets` ((K,) long) at 0 and their tilts at
+    the heliostat's mean tilt: the state a hop restarts them from."""
+    state = {k: v.clone() for k, v in tensors.items()}
+    state["surface"][facets] = 0.0
+    if "canting" in state:
+        state["canting"][facets] = tensors["canting"].mean(0)
+    return state
 
 
 def _only_facets(mask: Tensor, facets: Tensor) -> Tensor:
@@ -535,10 +561,7 @@ class _Fitter:
             facet = int(torch.randint(len(centres), (1,), generator=generator))
             size = HOP_BLOCK_SIZES[int(torch.randint(len(HOP_BLOCK_SIZES), (1,), generator=generator))]
             block = (centres - centres[facet]).norm(dim=1).argsort()[:size]
-            trial = {k: v.clone() for k, v in tensors.items()}
-            trial["surface"][block] = 0.0
-            if "canting" in trial:
-                trial["canting"][block] = trial["canting"].mean(0)
+            trial = _flattened(tensors, block)
             for blur in HOP_BLURS_PX:
                 trial, _ = self.descend(effects, trial, masks, progress, f"{label} (hop {i + 1})", blur)
             loss = self.loss(effects, trial)
@@ -603,6 +626,34 @@ class _Fitter:
             if self.loss(effects, kept) < best:
                 tensors, _ = self.descend(effects, kept, masks, progress, name)
                 best = self.loss(effects, tensors)
+            losses.append(best)
+        return tensors, losses
+
+    def pinned_hops(self, effects: dict, tensors: dict, masks: dict, progress: bool,
+                    label: str) -> tuple[dict, list[float]]:
+        """`pinned_hops` pinned hops (module docstring): each takes the facet whose flux meets the most
+        squared residual (`residual_shares`) among those not tried yet, sets its control heights to 0
+        and its tilts to the heliostat's mean tilt, descends everything else with it pinned there, then
+        everything (PIN_STEPS traces each), and keeps the result when the loss falls. A facet with
+        nothing free is passed over (it counts as a hop). Returns (tensors, the kept loss after each)."""
+        best, losses, tried = self.loss(effects, tensors), [], set()
+        for i in range(min(self.settings.pinned_hops, self.scene.heliostat.n_facets)):
+            shares = self.residual_shares(effects, tensors)
+            facet = next(f for f in shares.argsort(descending=True).tolist() if f not in tried)
+            tried.add(facet)
+            own = [k for k in ("surface", "canting") if k in tensors]
+            if not any(masks[k][facet].any() for k in own):
+                continue  # nothing of this facet is fitted
+            trial = _flattened(tensors, torch.tensor([facet]))
+            pinned = {k: m.clone() for k, m in masks.items()}
+            for k in own:
+                pinned[k][facet] = False
+            name = f"{label} (pinned hop {i + 1}, facet {facet})"
+            trial, _ = self.descend(effects, trial, pinned, progress, name, steps=PIN_STEPS)
+            trial, _ = self.descend(effects, trial, masks, progress, name, steps=PIN_STEPS)
+            loss = self.loss(effects, trial)
+            if loss < best:
+                tensors, best = trial, loss
             losses.append(best)
         return tensors, losses
 
