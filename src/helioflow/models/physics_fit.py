@@ -637,11 +637,11 @@ class _Fitter:
         everything (PIN_STEPS traces each), and keeps the result when the loss falls. A facet with
         nothing free is passed over (it counts as a hop). Returns (tensors, the kept loss after each)."""
         best, losses, tried = self.loss(effects, tensors), [], set()
+        own = [k for k in ("surface", "canting") if k in tensors]
+        order = self.residual_shares(effects, tensors).argsort(descending=True).tolist()
         for i in range(min(self.settings.pinned_hops, self.scene.heliostat.n_facets)):
-            shares = self.residual_shares(effects, tensors)
-            facet = next(f for f in shares.argsort(descending=True).tolist() if f not in tried)
+            facet = next(f for f in order if f not in tried)
             tried.add(facet)
-            own = [k for k in ("surface", "canting") if k in tensors]
             if not any(masks[k][facet].any() for k in own):
                 continue  # nothing of this facet is fitted
             trial = _flattened(tensors, torch.tensor([facet]))
@@ -652,8 +652,9 @@ class _Fitter:
             trial, _ = self.descend(effects, trial, pinned, progress, name, steps=PIN_STEPS)
             trial, _ = self.descend(effects, trial, masks, progress, name, steps=PIN_STEPS)
             loss = self.loss(effects, trial)
-            if loss < best:
+            if loss < best:  # the residual moved: rank the facets again
                 tensors, best = trial, loss
+                order = self.residual_shares(effects, tensors).argsort(descending=True).tolist()
             losses.append(best)
         return tensors, losses
 
