@@ -336,12 +336,19 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
     target = normalised(data.images, settings.loss, 1.0)
     fit = _Fitter(scene, data, target, settings, linear)
     history: list[float] = []
+
+    def staged(result: tuple[dict, list[float]]) -> dict:
+        """A stage's (tensors, losses): the losses go to the history and the spread scalars are
+        searched again on the tensors (into `effects`); returns the tensors."""
+        history.extend(result[1])
+        search_spreads(fit, effects, result[0], spread)
+        return result[0]
+
     if "surface" in tensors and (len(tensors) > 1 or spread):  # rigid first (module doc)
         rigid = {k: m & (k != "surface") for k, m in masks.items()}
-        if len(tensors) > 1:
-            tensors, losses = fit.descend(effects, tensors, rigid, progress, label + " (rigid)")
-            history += losses
-        search_spreads(fit, effects, tensors, spread)
+        unmoved = (tensors, [])  # a surface alone has nothing rigid to descend
+        tensors = staged(fit.descend(effects, tensors, rigid, progress, label + " (rigid)")
+                         if len(tensors) > 1 else unmoved)
     rounds = settings.rounds if (tensors and spread) else 1
     for r in range(rounds):
         for blur in (blur_levels(settings.coarse_blur_px) if r == 0 else (0.0,)) if tensors else ():
@@ -349,54 +356,39 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
             history += losses
         search_spreads(fit, effects, tensors, spread)
     many_facets = "surface" in tensors and scene.heliostat.n_facets > 1
+
+    def facet_sweeps(tensors: dict, count: int) -> dict:
+        """`count` facet sweeps (`_Fitter.sweep`), each followed by a descent of everything."""
+        for _ in range(count):
+            tensors, losses = fit.sweep(effects, tensors, masks, generator, progress, label)
+            history.extend(losses)
+            tensors = staged(fit.descend(effects, tensors, masks, progress, label))
+        return tensors
+
     if settings.facet_hops and many_facets:
-        tensors, losses = fit.hop(effects, tensors, masks, progress, label)
-        history += losses
-        search_spreads(fit, effects, tensors, spread)
+        tensors = staged(fit.hop(effects, tensors, masks, progress, label))
     if finish is not None and tensors and finish.noise_free(effects) and not scene.noise_free(effects):
         fit = _Fitter(finish, data, target, settings, linear)
-        tensors, losses = fit.descend(effects, tensors, masks, progress, label + " (noise-free)")
-        history += losses
-        search_spreads(fit, effects, tensors, spread)
+        tensors = staged(fit.descend(effects, tensors, masks, progress, label + " (noise-free)"))
     generator = torch.Generator().manual_seed(0)  # the sweeps' and block trials' random states
     sweeps = settings.facet_sweeps if many_facets else 0
-    tensors = facet_sweeps(fit, effects, tensors, masks, generator, sweeps, spread, history, progress, label)
+    tensors = facet_sweeps(tensors, sweeps)
     if settings.block_trials and many_facets:
         before = fit.loss(effects, tensors)
-        tensors, losses = fit.block_trials(effects, tensors, masks, generator, progress, label)
-        history += losses
-        search_spreads(fit, effects, tensors, spread)
-        if losses and losses[-1] < before:  # a block was kept: its neighbours now complement another state
-            tensors = facet_sweeps(fit, effects, tensors, masks, generator, sweeps, spread, history, progress,
-                                   label)
+        trials = fit.block_trials(effects, tensors, masks, generator, progress, label)
+        tensors = staged(trials)
+        if trials[1] and trials[1][-1] < before:  # a block was kept: the neighbours complement another state
+            tensors = facet_sweeps(tensors, sweeps)
     if settings.pinned_hops and many_facets:
-        tensors, losses = fit.pinned_hops(effects, tensors, masks, progress, label)
-        history += losses
-        search_spreads(fit, effects, tensors, spread)
+        tensors = staged(fit.pinned_hops(effects, tensors, masks, progress, label))
     free = sum(int(m.sum()) for m in masks.values())
     if settings.gauss_newton_steps and 0 < free <= settings.gauss_newton_max_parameters:
-        tensors, losses = fit.gauss_newton(effects, tensors, masks)
-        history += losses
-        search_spreads(fit, effects, tensors, spread)
+        tensors = staged(fit.gauss_newton(effects, tensors, masks))
     history.append(fit.loss(effects, tensors))
     if linear:
         effects = fit.with_linear(effects, tensors)
     effective = {"tracking": lambda t: t, "canting": zero_mean, "surface": without_planes}
     return FitResult(effects, {k: effective[k](v.detach()) for k, v in tensors.items()}, history, pairs)
-
-
-def facet_sweeps(fit: _Fitter, effects: dict, tensors: dict, masks: dict, generator: torch.Generator,
-                 count: int, spread: list[tuple[str, str]], history: list[float], progress: bool,
-                 label: str) -> dict:
-    """`count` facet sweeps (`_Fitter.sweep`), each followed by a descent of everything and a search
-    of the spread scalars (into `effects`); their losses are appended to `history`. Returns tensors."""
-    for _ in range(count):
-        tensors, losses = fit.sweep(effects, tensors, masks, generator, progress, label)
-        history += losses
-        tensors, losses = fit.descend(effects, tensors, masks, progress, label)
-        history += losses
-        search_spreads(fit, effects, tensors, spread)
-    return tensors
 
 
 def search_spreads(fit: _Fitter, effects: dict, tensors: dict, spread: list[tuple[str, str]]) -> None:
