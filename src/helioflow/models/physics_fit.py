@@ -346,9 +346,10 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
 
     if "surface" in tensors and (len(tensors) > 1 or spread):  # rigid first (module doc)
         rigid = {k: m & (k != "surface") for k, m in masks.items()}
-        unmoved = (tensors, [])  # a surface alone has nothing rigid to descend
-        tensors = staged(fit.descend(effects, tensors, rigid, progress, label + " (rigid)")
-                         if len(tensors) > 1 else unmoved)
+        if len(tensors) > 1:  # a surface alone has nothing rigid to descend, only spreads to search
+            tensors = staged(fit.descend(effects, tensors, rigid, progress, label + " (rigid)"))
+        else:
+            search_spreads(fit, effects, tensors, spread)
     rounds = settings.rounds if (tensors and spread) else 1
     for r in range(rounds):
         for blur in (blur_levels(settings.coarse_blur_px) if r == 0 else (0.0,)) if tensors else ():
