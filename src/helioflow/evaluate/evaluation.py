@@ -70,6 +70,34 @@ def _predict_all(model, ds: CalibrationDataset, gan_samples: int, seed: int) -> 
     return samples.cpu().numpy().astype(np.float32, copy=False)
 
 
+def scored_images(model, info: dict, ds: CalibrationDataset, model_path, dataset_path, gan_samples: int = 64,
+                  seed: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
+    """(predicted, measured, dataset maximum): the model's images at every dataset image's sun
+    position (an unconditioned model: its best sample per image) and the measured ones, (N, H, W)
+    each, both divided by the dataset's maximum (W/m^2) - what the metrics compare (module
+    docstring). `info`: the model file's metadata (``load_model``); the paths name the files in errors.
+
+    Raises:
+        DataError: an all-zero dataset, or a model whose image shape or output differs from the dataset's.
+    """
+    network, shape = info["network"], tuple(ds.images.shape[1:])
+    model_shape = tuple(int(s) for s in getattr(model, "image_shape", info.get("image_shape", shape)))
+    if model_shape != shape:
+        raise DataError(f"{model_path}: the {network} model predicts {model_shape[0]}x{model_shape[1]} images, "
+                        f"but {dataset_path} holds {shape[0]}x{shape[1]} images; train it on this dataset's resolution")
+    dataset_max = float(ds.images.max()) if ds.images.size else 0.0
+    if not dataset_max > 0:
+        raise DataError(f"{dataset_path}: every image is zero; there is no flux scale to compare against")
+    meas = ds.images / dataset_max
+    raw = _predict_all(model, ds, gan_samples, seed)
+    expected = len(meas) if model.controllable else gan_samples
+    if raw.shape != (expected, *shape):
+        raise DataError(f"{model_path}: the {network} model returned an array of shape {raw.shape}, "
+                        f"expected {(expected, *shape)}")
+    raw = raw * (float(info["scale"]) / dataset_max)
+    return (raw if model.controllable else raw[_best_samples(raw, meas)]), meas, dataset_max
+
+
 def _best_samples(samples: np.ndarray, meas: np.ndarray) -> np.ndarray:
     """(N,) index of the sample (S, H, W) with the best PSNR against each measured image (N, H, W)."""
     return np.array([int(np.argmax(psnr(samples, np.broadcast_to(m, samples.shape)))) for m in meas], dtype=int)
@@ -113,27 +141,8 @@ def evaluate_model(model_path: str | os.PathLike, dataset_path: str | os.PathLik
     ds = read_dataset(dataset_path)
     network = info["network"]
     name = str(ds.attrs.get("dataset", Path(dataset_path).stem))
-    shape = tuple(ds.images.shape[1:])
-    model_shape = tuple(int(s) for s in getattr(model, "image_shape", info.get("image_shape", shape)))
-    if model_shape != shape:
-        raise DataError(f"{model_path}: the {network} model predicts {model_shape[0]}x{model_shape[1]} images, "
-                        f"but {dataset_path} holds {shape[0]}x{shape[1]} images; train it on this dataset's resolution")
     pixel_m, slant_m = _geometry(ds, dataset_path)
-    dataset_max = float(ds.images.max()) if ds.images.size else 0.0
-    if not dataset_max > 0:
-        raise DataError(f"{dataset_path}: every image is zero; there is no flux scale to compare against")
-
-    meas = ds.images / dataset_max
-    raw = _predict_all(model, ds, gan_samples, seed)
-    expected = len(meas) if model.controllable else gan_samples
-    if raw.shape != (expected, *shape):
-        raise DataError(f"{model_path}: the {network} model returned an array of shape {raw.shape}, "
-                        f"expected {(expected, *shape)}")
-    raw = raw * (float(info["scale"]) / dataset_max)
-    if model.controllable:
-        pred = raw
-    else:
-        pred = raw[_best_samples(raw, meas)]
+    pred, meas, dataset_max = scored_images(model, info, ds, model_path, dataset_path, gan_samples, seed)
     per_image = image_metrics(pred, meas, pixel_m, slant_m)
 
     if model.controllable:

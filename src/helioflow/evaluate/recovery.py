@@ -11,7 +11,12 @@ Compares the model file's fitted tensors with the heliostat file the dataset was
   equal cells over every facet, so each square metre counts alike) over their RMS amplitude, their
   correlation, and the correlation per facet (which facets came back);
 - canting (several facets): RMS error and RMS of the true tilts (mrad);
-- slope error: fitted and true sigma (mrad).
+- slope error: fitted and true sigma (mrad);
+- PSNR (dB) per split, scored as the `evaluate` rule scores: the model as fitted, and the same model
+  with the true heliostat in it (its tracking, canting and surface, and the world's slope error)
+  instead of the fitted one. Their difference is what the remaining recovery error costs the
+  predictions; where the true heliostat still falls short of the images, the model's other effects
+  (sun shape, camera, ...) differ from the world's.
 """
 
 from __future__ import annotations
@@ -23,13 +28,15 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from ..data.hdf5 import read_dataset
+from ..data.hdf5 import SPLITS, read_dataset
 from ..data.surfaces import read_heliostat
 from ..errors import DataError
 from ..models.registry import load_model
 from ..physics.geometry import sun_vector
 from ..physics.heliostat import bspline_basis, orientation
 from .atomic import write_text_atomic
+from .evaluation import scored_images
+from .metrics import psnr
 
 
 def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, dataset_path: str | os.PathLike) -> dict:
@@ -64,10 +71,19 @@ def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, d
         fitted, truth = tensors["canting"].double(), true.canting_error * 1e3
         out["canting_mrad"] = {"rms_true": round(float(truth.pow(2).mean().sqrt()), 4),
                                "rms_error": round(float((fitted - truth).pow(2).mean().sqrt()), 4)}
-    slope = (model.fitted.effects.get("slope_error") or {}).get("sigma_mrad")
+    effects = {e: dict(p or {}) for e, p in model.fitted.effects.items()}
+    slope = effects.get("slope_error", {}).get("sigma_mrad")
     if slope is not None:
         world = (ds.attrs.get("world_effects") or {}).get("slope_error") or {}
         out["slope_error_mrad"] = {"fitted": slope, "true": world.get("sigma_mrad", 0.0)}
+        effects["slope_error"]["sigma_mrad"] = out["slope_error_mrad"]["true"]
+    fitted_psnr = _split_psnr(model, info, ds, model_path, dataset_path)
+    true_tensors = {"tracking": true.tracking_error * 1e3, "canting": true.canting_error * 1e3,
+                    "surface": true.control_heights * 1e3}
+    model.fitted = replace(model.fitted, effects=effects,
+                           tensors={k: true_tensors[k].to(v) for k, v in tensors.items()})
+    out["psnr_db"] = {"fitted": fitted_psnr,
+                      "true_heliostat": _split_psnr(model, info, ds, model_path, dataset_path)}
     return out
 
 
@@ -86,6 +102,13 @@ def surface_heights(control_heights_mm: torch.Tensor, samples_per_side: int = 64
     basis = torch.as_tensor(bspline_basis((np.arange(samples_per_side) + 0.5) / samples_per_side,
                                           control_heights_mm.shape[-1])[0], dtype=control_heights_mm.dtype)
     return torch.einsum("ui,fij,vj->fuv", basis, control_heights_mm, basis)
+
+
+def _split_psnr(model, info: dict, ds, model_path, dataset_path) -> dict[str, float]:
+    """{split: mean PSNR (dB)} of the model's predictions on each non-empty split of `ds`."""
+    predicted, measured, _ = scored_images(model, info, ds, model_path, dataset_path)
+    return {split: round(float(psnr(predicted[idx], measured[idx]).mean()), 2)
+            for split in SPLITS if len(idx := ds.indices(split))}
 
 
 def _correlation(a: torch.Tensor, b: torch.Tensor) -> float | None:
