@@ -9,9 +9,9 @@ import pytest
 
 from helioflow.cli import main
 from helioflow.config import HeliostatSpec, load_config
+from helioflow.data.hdf5 import read_dataset
 from helioflow.data.surfaces import read_heliostat, true_heliostat, write_heliostat
 from helioflow.data.synthetic import trace_dataset
-from helioflow.data.hdf5 import read_dataset
 from helioflow.errors import DataError
 from helioflow.evaluate.recovery import recovery
 from helioflow.models.nearest import Nearest, NearestConfig

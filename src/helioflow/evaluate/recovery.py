@@ -16,7 +16,8 @@ Compares the model file's fitted tensors with the heliostat file the dataset was
   with the true heliostat in it (its tracking, canting and surface, and the world's slope error)
   instead of the fitted one. Their difference is what the remaining recovery error costs the
   predictions; where the true heliostat still falls short of the images, the model's other effects
-  (sun shape, camera, ...) differ from the world's.
+  (sun shape, camera, ...) or its noise-free trace differ from the world's effects or the dataset's
+  trace (a ray trace is noisy).
 """
 
 from __future__ import annotations
