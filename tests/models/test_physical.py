@@ -48,8 +48,7 @@ def negated_facets(rows: int, cols: int, negated: int,
     s = scene(rows, cols)
     generator = torch.Generator().manual_seed(5)
     if smooth:
-        shapes = low_order_heights(rows * cols, 5, generator)
-        truth = shapes / shapes.pow(2).mean((1, 2), keepdim=True).sqrt() * 0.5
+        truth = low_order_heights(rows * cols, 5, generator, 0.5)
     else:
         truth = without_planes(torch.randn(rows * cols, 5, 5, generator=generator)) * 0.5
     data = measured(s, {"sunshape": BUIE, "surface": {}}, {"surface": truth})
@@ -242,7 +241,7 @@ def test_low_order_heights_are_plane_free_quadratic_and_cubic_shapes():
     """Block trials start from these: every facet the plane-free part of a shape of degree 2 and 3 in
     the control-point coordinates, with all seven terms in use across draws, and a draw repeatable from
     its generator."""
-    h = low_order_heights(200, 5, torch.Generator().manual_seed(0)).double()
+    h = low_order_heights(200, 5, torch.Generator().manual_seed(0), 1.0).double()
     assert torch.allclose(without_planes(h), h, atol=1e-5)
     u = torch.linspace(-1.0, 1.0, 5, dtype=torch.float64)
     y, x = torch.meshgrid(u, u, indexing="ij")
@@ -251,8 +250,9 @@ def test_low_order_heights_are_plane_free_quadratic_and_cubic_shapes():
     coefficients = torch.linalg.lstsq(basis, h.reshape(200, -1).T).solution  # (7, 200)
     assert torch.allclose(basis @ coefficients, h.reshape(200, -1).T, atol=1e-5)  # nothing of degree 4 up
     assert (coefficients.abs().mean(1) > 0.5).all()  # every quadratic and cubic term drawn
-    assert torch.equal(low_order_heights(3, 5, torch.Generator().manual_seed(1)),
-                       low_order_heights(3, 5, torch.Generator().manual_seed(1)))
+    assert torch.allclose(h.pow(2).mean((1, 2)), torch.ones(200, dtype=torch.float64))  # RMS as asked
+    assert torch.equal(low_order_heights(3, 5, torch.Generator().manual_seed(1), 0.5),
+                       low_order_heights(3, 5, torch.Generator().manual_seed(1), 0.5))
 
 
 def test_facet_blocks_are_the_2x2_windows_of_the_facet_grid():

@@ -451,8 +451,8 @@ def blur_levels(coarse_px: float) -> tuple[float, ...]:
     return (*levels, 0.0)
 
 
-def low_order_heights(count: int, control_points: int, generator: torch.Generator) -> Tensor:
-    """(count, C, C) plane-free control heights (arbitrary scale), each facet a combination with
+def low_order_heights(count: int, control_points: int, generator: torch.Generator, rms: float) -> Tensor:
+    """(count, C, C) plane-free control heights of RMS `rms` on every facet, each a combination with
     standard-normal weights of the monomials of degree 2 and 3 (x^2, xy, y^2, x^3, x^2 y, x y^2, y^3)
     of the control-point coordinates x, y in [-1, 1]: a smooth random shape, what the block trials
     start from (the height error a fit is left with is mostly of low order, README "Physics models")."""
@@ -460,7 +460,8 @@ def low_order_heights(count: int, control_points: int, generator: torch.Generato
     y, x = torch.meshgrid(u, u, indexing="ij")
     monomials = torch.stack([x ** i * y ** (d - i) for d in (2, 3) for i in range(d, -1, -1)])  # (7, C, C)
     weights = torch.randn(count, len(monomials), generator=generator)
-    return without_planes(torch.einsum("fm,mij->fij", weights, monomials))
+    heights = without_planes(torch.einsum("fm,mij->fij", weights, monomials))
+    return heights / heights.pow(2).mean((1, 2), keepdim=True).sqrt() * rms
 
 
 class _Fitter:
@@ -672,12 +673,11 @@ class _Fitter:
         """`tensors` with random control heights (plane-free, RMS `height_rms` mm) on `facets` ((K,)
         long) and random tilts (RMS `tilt_rms` mrad) added to their current ones or, if not
         `around_current_tilts`, to the mean tilt of the heliostat. The heights are independent per
-        control point or, if `low_order`, `low_order_heights` scaled to `height_rms` on every facet."""
+        control point or, if `low_order`, `low_order_heights` of RMS `height_rms` on every facet."""
         state = {k: v.clone() for k, v in tensors.items()}
         shape = state["surface"][facets].shape
         if low_order:
-            heights = low_order_heights(len(facets), shape[-1], generator)
-            state["surface"][facets] = heights / heights.pow(2).mean((1, 2), keepdim=True).sqrt() * height_rms
+            state["surface"][facets] = low_order_heights(len(facets), shape[-1], generator, height_rms)
         else:
             state["surface"][facets] = without_planes(torch.randn(shape, generator=generator) * height_rms)
         if "canting" in state:
