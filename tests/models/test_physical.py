@@ -343,3 +343,77 @@ def test_a_facet_sweep_finds_the_basin_a_descent_from_the_current_state_misses()
     assert error(descended) > 1.0
     assert error(swept) < 0.01
     assert losses == [fit.loss(effects, swept)]  # one facet refitted, its loss kept
+
+
+def resumable_fit() -> tuple[Scene, dict, Measurements, FitSettings]:
+    """A 2 x 2 facet fit of surface, canting and slope error through rigid descent, rounds, a hop, a
+    sweep, a block trial and a pinned hop: every kind of stage and the random generator."""
+    s, truth, _, _, _ = negated_facets(2, 2, 0)
+    world = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 0.5}, "surface": {}, "canting": {}}
+    data = measured(s, world, {"surface": truth * 0.5, "canting": torch.tensor([[0.3, 0.0], [-0.3, 0.2],
+                                                                               [0.0, -0.2], [0.0, 0.0]])})
+    effects = {"sunshape": BUIE, "slope_error": {"sigma_mrad": "fit"}, "surface": {"control_heights_mm": "fit"},
+               "canting": {"facet_tilts_mrad": "fit"}}
+    settings = FitSettings(steps=3, rounds=2, search_iterations=3, facet_hops=1, facet_sweeps=1, block_trials=1,
+                           pinned_hops=1)
+    return s, effects, data, settings
+
+
+@pytest.mark.parametrize("stop", ["block_trials", "pinned_hops"])
+def test_a_fit_stopped_midway_resumes_from_its_checkpoint_and_ends_where_it_would_have(monkeypatch, tmp_path, stop):
+    """Stopped in its block trials (the sweep before drew from the random generator) or in its pinned
+    hops (after a kept block trial and the sweep it calls for), the fit resumes after its last finished
+    stage."""
+    import helioflow.models.physics_fit as physics_fit
+    for constant in ("SWEEP_STEPS", "TRIAL_STEPS", "PIN_STEPS"):
+        monkeypatch.setattr(physics_fit, constant, 2)
+    block_trials = _Fitter.block_trials
+
+    def kept(self, *args):  # the trials as they are, reported as kept: the sweep runs once more
+        tensors, losses = block_trials(self, *args)
+        return tensors, [loss * 0.5 for loss in losses]
+
+    monkeypatch.setattr(_Fitter, "block_trials", kept)
+    s, effects, data, settings = resumable_fit()
+    whole = fit_effects(s, effects, data, settings)
+    hops, original, hop = [], getattr(_Fitter, stop), _Fitter.hop
+
+    def counted(self, *args):
+        hops.append(1)
+        return hop(self, *args)
+
+    def stopped(self, *args):
+        raise KeyboardInterrupt  # as when the job is killed there
+
+    monkeypatch.setattr(_Fitter, "hop", counted)
+    monkeypatch.setattr(_Fitter, stop, stopped)
+    path = tmp_path / "drt.pt.fit.ckpt"
+    with pytest.raises(KeyboardInterrupt):
+        fit_effects(s, effects, data, settings, checkpoint=path)
+    assert path.exists() and len(hops) == 1
+    monkeypatch.setattr(_Fitter, stop, original)
+    resumed = fit_effects(s, effects, data, settings, checkpoint=path)
+    assert len(hops) == 1  # the stages before the stop are not run again
+    assert resumed.history == whole.history and resumed.effects == whole.effects
+    assert all(torch.equal(resumed.tensors[k], whole.tensors[k]) for k in whole.tensors)
+
+
+def test_a_checkpoint_of_another_fit_is_ignored(tmp_path):
+    s, effects, data, settings = resumable_fit()
+    settings = replace(settings, facet_hops=0, facet_sweeps=0, block_trials=0, pinned_hops=0)
+    path = tmp_path / "fit.ckpt"
+    fit_effects(s, effects, data, settings, checkpoint=path)
+    other = Measurements(data.images.flip(-1), data.azimuth_deg, data.elevation_deg, data.scale)
+    resumed = fit_effects(s, effects, other, settings, checkpoint=path)
+    fresh = fit_effects(s, effects, other, settings)
+    assert resumed.history == fresh.history
+    assert all(torch.equal(resumed.tensors[k], fresh.tensors[k]) for k in fresh.tensors)
+
+
+def test_block_trials_on_a_heliostat_of_at_most_four_facets_refit_all_of_them():
+    """One block holds every facet: nothing is held beside it (an empty rest once crashed the trace)."""
+    s, truth, data, effects, start = negated_facets(1, 2, 1)
+    fit = _Fitter(s, data, data.images, FitSettings(steps=3, block_trials=1), [])
+    masks = {"surface": torch.ones_like(truth, dtype=torch.bool)}
+    tried, losses = fit.block_trials(effects, {"surface": start}, masks, torch.Generator().manual_seed(0), False, "")
+    assert len(losses) == 1 and losses[0] <= fit.loss(effects, {"surface": start})

@@ -40,6 +40,7 @@ def test_drt_fits_a_tiny_paint_dataset_in_two_steps_and_predicts_peak_normalised
     assert model.config.per_image_normalised and model.config.target_size_m[0] > 5.0  # from the dataset
     assert model.config.dni_w_m2 == 900.0
     assert set(model.fitted.tensors) == {"tracking", "canting", "surface"}
+    assert not (aa39 / "drt.pt.fit.ckpt").exists()  # the fit's checkpoint goes once the model is written
     # the rigid descent and the full one, two traces each, then the final loss
     assert len(model.curve) == 2 + 2 + 1 and all(torch.isfinite(torch.tensor([r["loss"] for r in model.curve])))
     loaded, info = load_model(aa39 / "drt.pt")

@@ -7,6 +7,7 @@ Sun positions enter in degrees and are encoded by :func:`sun_features`.
 
 from __future__ import annotations
 
+import os
 from abc import ABCMeta, abstractmethod
 from dataclasses import dataclass
 from typing import ClassVar
@@ -61,8 +62,9 @@ class SpotModel(nn.Module, metaclass=ABCMeta):
     uses_loop: bool = True  # False: `prepare` does all the fitting and the loop runs no steps
     curve: ClassVar[list[dict[str, float]]] = []  # a model that fits itself in `prepare` puts its curve here
 
-    def prepare(self, data: TrainingData) -> None:
-        """Look at the training data once before training (e.g. keep it, or size the scene)."""
+    def prepare(self, data: TrainingData, checkpoint_path: str | os.PathLike | None = None) -> None:
+        """Look at the training data once before training (e.g. keep it, or size the scene). A model
+        that fits itself here keeps its resumable state in `checkpoint_path` (if given)."""
 
     @abstractmethod
     def configure_optimizers(self) -> dict[str, torch.optim.Optimizer]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import torch
@@ -28,7 +29,7 @@ class Nearest(SpotModel):
         self.images = torch.zeros(0, *image_shape)  # (N, H, W) normalised training images
         self.directions = torch.zeros(0, 3)  # (N, 3) their sun directions
 
-    def prepare(self, data: TrainingData) -> None:
+    def prepare(self, data: TrainingData, checkpoint_path: str | os.PathLike | None = None) -> None:
         """Keep the training images (N, H, W) and their sun directions (N, 3)."""
         self.images = data.images.clone()
         self.directions = sun_features(data.azimuth_deg, data.elevation_deg)

@@ -19,6 +19,7 @@ properties of the mirror that the calibration images measure.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 
 import torch
@@ -136,8 +137,9 @@ class RaytraceModel(SpotModel):
                  "dni_w_m2": c.dni_w_m2, "trace": c.dataset_trace}
         return dataset_scene(self.heliostat, attrs, self.image_shape, c.cells_per_side, c.fit_rays, fitting)
 
-    def prepare(self, data: TrainingData) -> None:
-        """Fit the model's parameters to (a spread subset of) the training images."""
+    def prepare(self, data: TrainingData, checkpoint_path: str | os.PathLike | None = None) -> None:
+        """Fit the model's parameters to (a spread subset of) the training images; a fit stopped
+        midway resumes from `checkpoint_path` (physics_fit.FitCheckpoint)."""
         self.heliostat = read_heliostat(self.config.heliostat_path).ideal().to("cpu")
         self.scale = data.scale
         n = len(data)
@@ -150,7 +152,8 @@ class RaytraceModel(SpotModel):
                                block_trials=c.block_trials, pinned_hops=c.pinned_hops,
                                gauss_newton_steps=c.gauss_newton_steps)
         self.fitted = fit_effects(self.scene(fitting=True), self.effects_to_fit(self.heliostat), measured,
-                                  settings, progress=True, label=f"fit {self.name}", finish=self.scene())
+                                  settings, progress=True, label=f"fit {self.name}", finish=self.scene(),
+                                  checkpoint=checkpoint_path)
         self.curve = [{"step": i, "loss": v} for i, v in enumerate(self.fitted.history)]
 
     def get_extra_state(self) -> dict:

@@ -74,8 +74,12 @@ attenuation, gain) changes nothing - what the diagnosis uses.
 
 from __future__ import annotations
 
+import hashlib
+import logging
 import math
-from dataclasses import dataclass, field, replace
+import os
+from dataclasses import dataclass, field, fields, is_dataclass, replace
+from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -85,6 +89,8 @@ from ..physics.effects import FIT, REGISTRY, fitted_parameters, resolve
 from ..physics.heliostat import Heliostat, without_planes
 from ..physics.raytrace import trace
 from ..physics.target import Target, gaussian_blur
+
+log = logging.getLogger(__name__)
 
 LOSSES = ("absolute", "shape")
 SCALES = {("camera", "gain"), ("reflectivity", "value"), ("attenuation", "transmittance")}
@@ -320,10 +326,12 @@ class FitSettings:
 
 
 def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSettings = FitSettings(),
-                progress: bool = False, label: str = "fit", finish: Scene | None = None) -> FitResult:
+                progress: bool = False, label: str = "fit", finish: Scene | None = None,
+                checkpoint: str | os.PathLike | None = None) -> FitResult:
     """Fit every "fit" parameter of `effects` to the measured spots; see the module docstring.
     `finish`: the scene the model predicts with; a fit that `scene` traces with rays ends on it
-    when it traces kernels (module docstring)."""
+    when it traces kernels (module docstring). `checkpoint`: a file that keeps the fit's state after
+    each stage, so that a fit stopped midway resumes from it (`FitCheckpoint`)."""
     effects = {e: dict(p or {}) for e, p in effects.items()}
     pairs = fitted_parameters(effects)
     linear = [p for p in pairs if p in SCALES or p in OFFSETS]
@@ -339,6 +347,19 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
     target = normalised(data.images, settings.loss, 1.0)
     fit = _Fitter(scene, data, target, settings, linear)
     history: list[float] = []
+    generator = torch.Generator().manual_seed(0)  # the sweeps' and block trials' random states
+    kept = False  # whether a block trial was kept
+    resume = FitCheckpoint(checkpoint, fingerprint(scene, effects, data, settings, finish))
+    if resume.saved is not None:
+        tensors, effects, history, kept = (resume.saved[k] for k in ("tensors", "effects", "history", "kept"))
+        generator.set_state(resume.saved["generator"])
+        if resume.saved["noise_free"]:
+            fit = _Fitter(finish, data, target, settings, linear)
+
+    def saved(tensors: dict) -> None:
+        """A stage ended with `tensors`: keep the state for a resumed fit."""
+        resume.save({"tensors": tensors, "effects": effects, "history": history, "kept": kept,
+                     "generator": generator.get_state(), "noise_free": fit.scene is not scene})
 
     def staged(result: tuple[dict, list[float]]) -> dict:
         """A stage's (tensors, losses): the losses go to the history and the spread scalars are
@@ -347,52 +368,132 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
         search_spreads(fit, effects, result[0], spread)
         return result[0]
 
-    if "surface" in tensors and (len(tensors) > 1 or spread):  # rigid first (module doc)
+    if "surface" in tensors and (len(tensors) > 1 or spread) and resume.due():  # rigid first (module doc)
         rigid = {k: m & (k != "surface") for k, m in masks.items()}
         if len(tensors) > 1:  # a surface alone has nothing rigid to descend, only spreads to search
             tensors = staged(fit.descend(effects, tensors, rigid, progress, label + " (rigid)"))
         else:
             search_spreads(fit, effects, tensors, spread)
+        saved(tensors)
     rounds = settings.rounds if (tensors and spread) else 1
     for r in range(rounds):
+        if not resume.due():
+            continue
         for blur in (blur_levels(settings.coarse_blur_px) if r == 0 else (0.0,)) if tensors else ():
             tensors, losses = fit.descend(effects, tensors, masks, progress, label, blur)
             history += losses
         search_spreads(fit, effects, tensors, spread)
+        saved(tensors)
     many_facets = "surface" in tensors and scene.heliostat.n_facets > 1
 
     def facet_sweeps(tensors: dict, count: int) -> dict:
         """`count` facet sweeps (`_Fitter.sweep`), each followed by a descent of everything."""
         for _ in range(count):
-            tensors, losses = fit.sweep(effects, tensors, masks, generator, progress, label)
-            history.extend(losses)
-            tensors = staged(fit.descend(effects, tensors, masks, progress, label))
+            if resume.due():
+                tensors, losses = fit.sweep(effects, tensors, masks, generator, progress, label)
+                history.extend(losses)
+                tensors = staged(fit.descend(effects, tensors, masks, progress, label))
+                saved(tensors)
         return tensors
 
-    if settings.facet_hops and many_facets:
+    if settings.facet_hops and many_facets and resume.due():
         tensors = staged(fit.hop(effects, tensors, masks, progress, label))
-    if finish is not None and tensors and finish.noise_free(effects) and not scene.noise_free(effects):
+        saved(tensors)
+    if (finish is not None and tensors and finish.noise_free(effects) and not scene.noise_free(effects)
+            and resume.due()):
         fit = _Fitter(finish, data, target, settings, linear)
         tensors = staged(fit.descend(effects, tensors, masks, progress, label + " (noise-free)"))
-    generator = torch.Generator().manual_seed(0)  # the sweeps' and block trials' random states
+        saved(tensors)
     sweeps = settings.facet_sweeps if many_facets else 0
     tensors = facet_sweeps(tensors, sweeps)
     if settings.block_trials and many_facets:
-        before = fit.loss(effects, tensors)
-        trials = fit.block_trials(effects, tensors, masks, generator, progress, label)
-        tensors = staged(trials)
-        if trials[1] and trials[1][-1] < before:  # a block was kept: the neighbours complement another state
+        if resume.due():
+            before = fit.loss(effects, tensors)
+            trials = fit.block_trials(effects, tensors, masks, generator, progress, label)
+            tensors = staged(trials)
+            kept = bool(trials[1]) and trials[1][-1] < before
+            saved(tensors)
+        if kept:  # a block was kept: the neighbours complement another state
             tensors = facet_sweeps(tensors, sweeps)
-    if settings.pinned_hops and many_facets:
+    if settings.pinned_hops and many_facets and resume.due():
         tensors = staged(fit.pinned_hops(effects, tensors, masks, progress, label))
+        saved(tensors)
     free = sum(int(m.sum()) for m in masks.values())
-    if settings.gauss_newton_steps and 0 < free <= settings.gauss_newton_max_parameters:
+    if settings.gauss_newton_steps and 0 < free <= settings.gauss_newton_max_parameters and resume.due():
         tensors = staged(fit.gauss_newton(effects, tensors, masks))
+        saved(tensors)
     history.append(fit.loss(effects, tensors))
     if linear:
         effects = fit.with_linear(effects, tensors)
     effective = {"tracking": lambda t: t, "canting": zero_mean, "surface": without_planes}
     return FitResult(effects, {k: effective[k](v.detach()) for k, v in tensors.items()}, history, pairs)
+
+
+class FitCheckpoint:
+    """A fit's state after each of its stages (the rigid descent, each round, the facet hops, the
+    noise-free finish, each facet sweep, the block trials, the pinned hops, the Gauss-Newton steps),
+    kept in a file (written whole after every stage), so that a fit stopped midway (killed, out of
+    time) resumes after the last stage it finished and ends exactly where it would have ended
+    uninterrupted: the state holds the tensors, the effect list, the loss history and the random
+    generator. The file also holds the `fingerprint` of the fit; one made by another fit is ignored
+    (and overwritten). Without a path nothing is kept."""
+
+    def __init__(self, path: str | os.PathLike | None, fingerprint: str):
+        self.path = None if path is None else Path(path)
+        self.fingerprint = fingerprint
+        self.stage = 0  # stages met so far
+        self.saved: dict | None = None
+        if self.path is not None and self.path.exists():
+            state = torch.load(self.path, weights_only=False)
+            if state.get("fingerprint") == fingerprint:
+                self.saved = state
+                log.info("resuming the fit from %s after its stage %d", self.path, state["stage"])
+            else:
+                log.info("ignoring %s: it holds the state of another fit", self.path)
+
+    def due(self) -> bool:
+        """Meet the next stage: whether it has to run (False when the saved state is past it)."""
+        self.stage += 1
+        return self.saved is None or self.stage > self.saved["stage"]
+
+    def save(self, state: dict) -> None:
+        """Keep `state` as the state after the stage met last."""
+        if self.path is None:
+            return
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        torch.save({"fingerprint": self.fingerprint, "stage": self.stage, **state}, tmp)
+        os.replace(tmp, self.path)
+
+
+def fingerprint(*parts) -> str:
+    """SHA-256 (hex) of what a fit depends on: tensors by their dtype, shape and bytes, dataclasses by
+    their fields, dicts, lists and tuples by their items, anything else by its repr."""
+    digest = hashlib.sha256()
+
+    def feed(x) -> None:
+        if isinstance(x, Tensor):
+            digest.update(f"{x.dtype}{tuple(x.shape)}".encode())
+            digest.update(x.detach().cpu().contiguous().numpy().tobytes())
+        elif is_dataclass(x):
+            digest.update(type(x).__name__.encode())
+            for f in fields(x):
+                feed(f.name)
+                feed(getattr(x, f.name))
+        elif isinstance(x, dict):
+            for k, v in x.items():
+                feed(k)
+                feed(v)
+        elif isinstance(x, (list, tuple)):
+            digest.update(f"{type(x).__name__}{len(x)}".encode())
+            for v in x:
+                feed(v)
+        else:
+            digest.update(repr(x).encode())
+
+    for part in parts:
+        feed(part)
+    return digest.hexdigest()
 
 
 def search_spreads(fit: _Fitter, effects: dict, tensors: dict, spread: list[tuple[str, str]]) -> None:
@@ -693,7 +794,10 @@ class _Fitter:
                  for k, m in masks.items()}
         if not any(m.any() for m in alone.values()):
             return None
-        rest = torch.tensor([f for f in range(self.scene.heliostat.n_facets) if f not in facets.tolist()])
+        rest = torch.tensor([f for f in range(self.scene.heliostat.n_facets) if f not in facets.tolist()],
+                            dtype=torch.long)
+        if not len(rest):  # the block is the whole heliostat: nothing is held
+            return alone, (torch.zeros_like(self.target), torch.zeros(len(self.target)))
         with torch.no_grad():
             return alone, self.traced(effects, tensors, rest)
 

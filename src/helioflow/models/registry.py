@@ -100,8 +100,9 @@ def train_network(network: str, settings: dict, dataset_path: str | os.PathLike,
                   train_images: int | None = None, progress: bool = True) -> SpotModel:
     """The `train` rule: fit one network on a dataset's train split and write the model file.
 
-    The checkpoint `<model_path>.ckpt` lets an interrupted run resume; it is removed once the
-    model file is written.
+    The checkpoints `<model_path>.ckpt` (the training loop's) and `<model_path>.fit.ckpt` (the fit of
+    a physics model, after each stage) let an interrupted run resume; they are removed once the model
+    file is written.
     """
     ds = read_dataset(dataset_path)
     loop, config = split_settings(network, {**dataset_geometry(network, ds.attrs), **settings}, seed)
@@ -109,13 +110,15 @@ def train_network(network: str, settings: dict, dataset_path: str | os.PathLike,
     torch.manual_seed(seed)
     _, model_cls = network_classes(network)
     model = model_cls(config, tuple(data.images.shape[1:]))
-    model.prepare(data)
+    fit_checkpoint = Path(str(model_path) + ".fit.ckpt")
+    model.prepare(data, fit_checkpoint)
     checkpoint = Path(str(model_path) + ".ckpt")
     curve = train(model, data, loop, checkpoint, progress=progress) or model.curve
     save_model(model_path, model, network, config, data.scale, {"dataset": str(dataset_path), "train_images": len(data),
                                                                "steps": loop.steps, "seed": seed})
     write_curve(curve, curve_csv, curve_png, f"{network} on {Path(dataset_path).stem}")
     checkpoint.unlink(missing_ok=True)
+    fit_checkpoint.unlink(missing_ok=True)
     log.info("wrote %s (%d training images, %d steps)", model_path, len(data), loop.steps)
     return model
 
