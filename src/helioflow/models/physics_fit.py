@@ -85,6 +85,7 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
+from ..evaluate.atomic import save_torch_atomic
 from ..physics.effects import FIT, REGISTRY, fitted_parameters, resolve
 from ..physics.heliostat import Heliostat, without_planes
 from ..physics.raytrace import trace
@@ -349,7 +350,7 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
     history: list[float] = []
     generator = torch.Generator().manual_seed(0)  # the sweeps' and block trials' random states
     kept = False  # whether a block trial was kept
-    resume = FitCheckpoint(checkpoint, fingerprint(scene, effects, data, settings, finish))
+    resume = FitCheckpoint(checkpoint, scene, effects, data, settings, finish)
     if resume.saved is not None:
         tensors, effects, history, kept = (resume.saved[k] for k in ("tensors", "effects", "history", "kept"))
         generator.set_state(resume.saved["generator"])
@@ -435,17 +436,17 @@ class FitCheckpoint:
     kept in a file (written whole after every stage), so that a fit stopped midway (killed, out of
     time) resumes after the last stage it finished and ends exactly where it would have ended
     uninterrupted: the state holds the tensors, the effect list, the loss history and the random
-    generator. The file also holds the `fingerprint` of the fit; one made by another fit is ignored
-    (and overwritten). Without a path nothing is kept."""
+    generator. The file also holds the `fingerprint` of what the fit depends on (`parts`); one made by
+    another fit is ignored (and overwritten). Without a path nothing is kept (and nothing hashed)."""
 
-    def __init__(self, path: str | os.PathLike | None, fingerprint: str):
+    def __init__(self, path: str | os.PathLike | None, *parts):
         self.path = None if path is None else Path(path)
-        self.fingerprint = fingerprint
+        self.fingerprint = fingerprint(*parts) if path is not None else ""
         self.stage = 0  # stages met so far
         self.saved: dict | None = None
         if self.path is not None and self.path.exists():
             state = torch.load(self.path, weights_only=False)
-            if state.get("fingerprint") == fingerprint:
+            if state.get("fingerprint") == self.fingerprint:
                 self.saved = state
                 log.info("resuming the fit from %s after its stage %d", self.path, state["stage"])
             else:
@@ -458,12 +459,8 @@ class FitCheckpoint:
 
     def save(self, state: dict) -> None:
         """Keep `state` as the state after the stage met last."""
-        if self.path is None:
-            return
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_name(self.path.name + ".tmp")
-        torch.save({"fingerprint": self.fingerprint, "stage": self.stage, **state}, tmp)
-        os.replace(tmp, self.path)
+        if self.path is not None:
+            save_torch_atomic(self.path, {"fingerprint": self.fingerprint, "stage": self.stage, **state})
 
 
 def fingerprint(*parts) -> str:

@@ -13,6 +13,7 @@ import torch
 
 from ..data.hdf5 import CalibrationDataset, read_dataset
 from ..errors import ConfigError, DataError
+from ..evaluate.atomic import save_torch_atomic
 from .base import SpotModel, TrainingData
 from .training import LoopConfig, train, write_curve
 
@@ -125,13 +126,9 @@ def train_network(network: str, settings: dict, dataset_path: str | os.PathLike,
 
 def save_model(path, model: SpotModel, network: str, config, scale: float, meta: dict) -> None:
     """Atomically write a model file: network name, config, weights, image scale, metadata."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save({"format": MODEL_FORMAT, "network": network, "config": dataclasses.asdict(config),
-                "image_shape": tuple(model.image_shape), "state": model.state_dict(), "scale": scale,
-                "meta": meta}, tmp)
-    os.replace(tmp, path)
+    save_torch_atomic(path, {"format": MODEL_FORMAT, "network": network, "config": dataclasses.asdict(config),
+                             "image_shape": tuple(model.image_shape), "state": model.state_dict(), "scale": scale,
+                             "meta": meta})
 
 
 def load_model(path: str | os.PathLike) -> tuple[SpotModel, dict]:

@@ -20,6 +20,7 @@ import torch
 from tqdm import tqdm
 
 from ..errors import HelioflowError
+from ..evaluate.atomic import save_torch_atomic
 from .base import SpotModel, TrainingData
 
 
@@ -99,11 +100,9 @@ def train(
 
 def save_checkpoint(path: Path, model: SpotModel, optimizers: dict, step: int, curve: list[dict]) -> None:
     """Atomically write the resumable state."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save({"model": model.state_dict(), "optimizers": {k: o.state_dict() for k, o in optimizers.items()},
-                "step": step, "curve": curve}, tmp)
-    os.replace(tmp, path)
+    save_torch_atomic(path, {"model": model.state_dict(),
+                             "optimizers": {k: o.state_dict() for k, o in optimizers.items()},
+                             "step": step, "curve": curve})
 
 
 def write_curve(curve: list[dict[str, float]], csv_path: str | os.PathLike, png_path: str | os.PathLike,
