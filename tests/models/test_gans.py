@@ -100,6 +100,22 @@ def test_resumed_training_equals_uninterrupted(network, tmp_path):
         assert torch.equal(a[k], b[k]), k
 
 
+@pytest.mark.parametrize("changed", [{"features": 8}, {"lr": 1e-3}], ids=["architecture", "learning_rate"])
+def test_a_checkpoint_of_another_configuration_is_not_resumed(changed, tmp_path):
+    """A run stopped midway, its config edited, rerun: the new training starts afresh (not from the
+    old weights, and not with a load error when the architecture changed)."""
+    data, loop = tiny_data(), LoopConfig(steps=2, batch_size=4, checkpoint_every=1)
+    train(make("gan"), data, loop, tmp_path / "stale.pt", progress=False)
+    edited = make("gan", **changed)
+    curve = train(edited, data, loop, tmp_path / "stale.pt", progress=False)
+    fresh = make("gan", **changed)
+    train(fresh, data, loop, tmp_path / "fresh.pt", progress=False)
+
+    assert [row["step"] for row in curve] == [0, 1]
+    for k, v in fresh.state_dict().items():
+        assert torch.equal(edited.state_dict()[k], v), k
+
+
 def test_cgan_prediction_is_deterministic_and_depends_on_the_condition(tmp_path):
     model = make("cgan")
     train(model, tiny_data(), LoopConfig(steps=3, batch_size=4), tmp_path / "c.pt", progress=False)

@@ -74,11 +74,10 @@ attenuation, gain) changes nothing - what the diagnosis uses.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import math
 import os
-from dataclasses import dataclass, field, fields, is_dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -86,6 +85,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from ..evaluate.atomic import save_torch_atomic
+from ..fingerprint import fingerprint
 from ..physics.effects import FIT, REGISTRY, fitted_parameters, resolve
 from ..physics.heliostat import Heliostat, without_planes
 from ..physics.raytrace import trace
@@ -461,36 +461,6 @@ class FitCheckpoint:
         """Keep `state` as the state after the stage met last."""
         if self.path is not None:
             save_torch_atomic(self.path, {"fingerprint": self.fingerprint, "stage": self.stage, **state})
-
-
-def fingerprint(*parts) -> str:
-    """SHA-256 (hex) of what a fit depends on: tensors by their dtype, shape and bytes, dataclasses by
-    their fields, dicts, lists and tuples by their items, anything else by its repr."""
-    digest = hashlib.sha256()
-
-    def feed(x) -> None:
-        if isinstance(x, Tensor):
-            digest.update(f"{x.dtype}{tuple(x.shape)}".encode())
-            digest.update(x.detach().cpu().contiguous().numpy().tobytes())
-        elif is_dataclass(x):
-            digest.update(type(x).__name__.encode())
-            for f in fields(x):
-                feed(f.name)
-                feed(getattr(x, f.name))
-        elif isinstance(x, dict):
-            for k, v in x.items():
-                feed(k)
-                feed(v)
-        elif isinstance(x, (list, tuple)):
-            digest.update(f"{type(x).__name__}{len(x)}".encode())
-            for v in x:
-                feed(v)
-        else:
-            digest.update(repr(x).encode())
-
-    for part in parts:
-        feed(part)
-    return digest.hexdigest()
 
 
 def search_spreads(fit: _Fitter, effects: dict, tensors: dict, spread: list[tuple[str, str]]) -> None:

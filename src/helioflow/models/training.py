@@ -3,7 +3,8 @@
 Seeded (each step's batch and randomness come from a generator seeded by (seed, step), so a run
 resumed from a checkpoint repeats exactly what the uninterrupted run would have done), a tqdm
 progress bar with the losses, a checkpoint every `checkpoint_every` steps that the next call
-resumes from, one clear error on a NaN or exploding loss, and the training curve (CSV and PNG)
+resumes from (only a call with the same model, config, seed, batch size and data: the checkpoint holds
+their `fingerprint`; the number of steps may grow, to train on), one clear error on a NaN or exploding loss, and the training curve (CSV and PNG)
 saved beside the model.
 """
 
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import io
+import logging
 import math
 import os
 from dataclasses import dataclass
@@ -21,7 +23,10 @@ from tqdm import tqdm
 
 from ..errors import HelioflowError
 from ..evaluate.atomic import save_torch_atomic
+from ..fingerprint import fingerprint
 from .base import SpotModel, TrainingData
+
+log = logging.getLogger(__name__)
 
 
 class TrainingDiverged(HelioflowError):
@@ -62,7 +67,9 @@ def train(
     """Train `model` on `data` for loop.steps steps, resuming from `checkpoint_path` if it exists.
 
     The checkpoint (model and optimizer states, the step reached, the curve so far) is written
-    atomically every loop.checkpoint_every steps and at the end; delete it to start afresh.
+    atomically every loop.checkpoint_every steps and at the end; delete it to start afresh. A
+    checkpoint of another training (another model, config, seed, batch size or data) is ignored and
+    overwritten.
 
     Returns:
         The training curve: one dict per step with 'step' and the step's named losses.
@@ -70,12 +77,18 @@ def train(
     checkpoint_path = Path(checkpoint_path)
     optimizers = model.configure_optimizers()
     start, curve = 0, []
+    key = fingerprint(type(model).__name__, model.config, loop.seed, loop.batch_size, data)
     if checkpoint_path.exists():
         state = torch.load(checkpoint_path, weights_only=False)
-        model.load_state_dict(state["model"])
-        for name, opt in optimizers.items():
-            opt.load_state_dict(state["optimizers"][name])
-        start, curve = state["step"], state["curve"]
+        if state.get("fingerprint") == key:
+            model.load_state_dict(state["model"])
+            for name, opt in optimizers.items():
+                opt.load_state_dict(state["optimizers"][name])
+            start, curve = state["step"], state["curve"]
+            log.info("resuming the training from %s after step %d", checkpoint_path, start)
+        else:
+            log.info("ignoring %s: it holds another training (model, config, seed, batch size or data)",
+                     checkpoint_path)
     model.train()
     bar = tqdm(range(start, loop.steps), initial=start, total=loop.steps, disable=not progress,
                desc=f"train {model.name}", mininterval=2.0)
@@ -93,14 +106,14 @@ def train(
         curve.append({"step": step, **losses})
         bar.set_postfix({k: f"{v:.4g}" for k, v in losses.items()}, refresh=False)
         if (step + 1) % loop.checkpoint_every == 0 or step + 1 == loop.steps:
-            save_checkpoint(checkpoint_path, model, optimizers, step + 1, curve)
+            save_checkpoint(checkpoint_path, key, model, optimizers, step + 1, curve)
     model.eval()
     return curve
 
 
-def save_checkpoint(path: Path, model: SpotModel, optimizers: dict, step: int, curve: list[dict]) -> None:
-    """Atomically write the resumable state."""
-    save_torch_atomic(path, {"model": model.state_dict(),
+def save_checkpoint(path: Path, key: str, model: SpotModel, optimizers: dict, step: int, curve: list[dict]) -> None:
+    """Atomically write the resumable state of the training whose fingerprint is `key`."""
+    save_torch_atomic(path, {"fingerprint": key, "model": model.state_dict(),
                              "optimizers": {k: o.state_dict() for k, o in optimizers.items()},
                              "step": step, "curve": curve})
 
