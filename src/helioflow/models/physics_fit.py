@@ -25,7 +25,7 @@ a random block of neighbouring facets (a facet and its 0, 1 or 3 nearest neighbo
 flat and untilted, everything is descended again (images blurred by 2 px, then sharp), and the
 result is kept when the loss falls. Neighbouring facets' images overlap, and a fit from flat
 facets ends where the neighbours' flux covers for a wrong facet; no descent leaves that minimum,
-but forgetting a block and fitting it again does (semi_sphere: README, "Physics models").
+but forgetting a block and fitting it again does (semi_sphere: docs/surface_search.md).
 
 A fit traced with bilinear rays (common random numbers: the same rays at every trace) has fitted
 the rays' noise along with the spots, so it ends on the noise-free kernel trace it predicts with
@@ -37,7 +37,7 @@ start that ends lowest is kept when the heliostat's loss falls, and a descent of
 follows each sweep.
 A facet refitted alone among true neighbours comes back from flat to within a few percent of its
 heights; among fitted ones it finds the state that best complements them, which the descent of
-everything then carries further (semi_sphere: README, "Physics models").
+everything then carries further (semi_sphere: docs/surface_search.md).
 
 Then `block_trials` block trials: the 2 x 2 block of neighbouring facets whose flux meets the most
 squared residual (not tried before) is refitted alone from random low-order states (quadratic and
@@ -48,7 +48,7 @@ state, so a facet refitted alone returns to the state that complements them; a b
 together can leave that state, and once one block is right the descent of everything carries its
 neighbours towards the truth. A block state is judged after that descent, not with the neighbours
 held: the true state of a block looks worse than the fit's while they still cover for the wrong one
-(semi_sphere: README, "Physics models"). When a block was kept, the facet sweeps run once more: the
+(semi_sphere: docs/surface_search.md). When a block was kept, the facet sweeps run once more: the
 facets now complement other neighbours.
 
 Then `pinned_hops` pinned hops: the facet whose flux meets the most squared residual (not tried
@@ -57,7 +57,7 @@ everything descends (PIN_STEPS traces each); the result is kept when the loss fa
 cover for a wrong facet, so the facet's true state looks worse than its wrong one while they are
 held (the sweep and the block trials judge that way) and a hop that frees everything at once lets
 the facet slide back into the state they cover for; pinned flat, the facet makes its neighbours
-give up the cover first (semi_sphere: README, "Physics models").
+give up the cover first (semi_sphere: docs/surface_search.md).
 
 A fit with few free tensor entries (at most `gauss_newton_max_parameters`) ends with
 Gauss-Newton steps on them (`gauss_newton_steps`), then one more spread search. L-BFGS stops in
@@ -523,7 +523,7 @@ def low_order_heights(count: int, control_points: int, generator: torch.Generato
     """(count, C, C) plane-free control heights of RMS `rms` on every facet, each a combination with
     standard-normal weights of the monomials of degree 2 and 3 (x^2, xy, y^2, x^3, x^2 y, x y^2, y^3)
     of the control-point coordinates x, y in [-1, 1]: a smooth random shape, what the block trials
-    start from (the height error a fit is left with is mostly of low order, README "Physics models")."""
+    start from (the height error a fit is left with is mostly of low order, docs/surface_search.md)."""
     u = torch.linspace(-1.0, 1.0, control_points)
     y, x = torch.meshgrid(u, u, indexing="ij")
     monomials = torch.stack([x ** i * y ** (d - i) for d in (2, 3) for i in range(d, -1, -1)])  # (7, C, C)
@@ -597,7 +597,7 @@ class _Fitter:
         The loss is smooth in the tensors and deterministic (kernel splatting, or bilinear rays
         with the same random numbers at every trace), which is what quasi-Newton steps need: on
         the 41-parameter sanity_check fit L-BFGS reaches a 5x lower loss (7 dB) than Adam did,
-        in fewer traces (README, "Physics models")."""
+        in fewer traces (docs/surface_search.md)."""
         params = {k: v.clone().requires_grad_(True) for k, v in tensors.items()}
         steps = steps or self.settings.steps
         optimizer = torch.optim.LBFGS(list(params.values()), lr=1.0, max_iter=steps, max_eval=steps,
