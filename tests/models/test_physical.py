@@ -9,7 +9,7 @@ import torch
 from helioflow.errors import ConfigError
 from helioflow.models.physical import PhysicsConfig, drt_effects
 from helioflow.models.physics_fit import (FitSettings, Measurements, Scene, _Fitter, blur_levels,
-                                          facet_blocks, fit_effects, low_order_heights)
+                                          facet_blocks, fit_effects)
 from helioflow.physics.heliostat import TRACKING_PARAMETERS, ideal_heliostat, without_planes
 from helioflow.physics.target import Target
 
@@ -39,18 +39,13 @@ def measured(s: Scene, world: dict, tensors: dict | None = None, n: int = 12) ->
     return Measurements(images / scale, az, el, scale)
 
 
-def negated_facets(rows: int, cols: int, negated: int,
-                   smooth: bool = False) -> tuple[Scene, torch.Tensor, Measurements, dict, torch.Tensor]:
+def negated_facets(rows: int, cols: int,
+                   negated: int) -> tuple[Scene, torch.Tensor, Measurements, dict, torch.Tensor]:
     """A surface-only problem on rows x cols facets: (scene, true control heights (F, 5, 5) mm,
     plane-free, RMS about 0.5 mm, the images they make, the effect list that fits the surface, a start
-    that is the truth with the heights of the first `negated` facets negated). The heights are
-    independent per control point or, if `smooth`, quadratic and cubic shapes (`low_order_heights`)."""
+    that is the truth with the heights of the first `negated` facets negated)."""
     s = scene(rows, cols)
-    generator = torch.Generator().manual_seed(5)
-    if smooth:
-        truth = low_order_heights(rows * cols, 5, generator, 0.5)
-    else:
-        truth = without_planes(torch.randn(rows * cols, 5, 5, generator=generator)) * 0.5
+    truth = without_planes(torch.randn(rows * cols, 5, 5, generator=torch.Generator().manual_seed(5))) * 0.5
     data = measured(s, {"sunshape": BUIE, "surface": {}}, {"surface": truth})
     start = truth.clone()
     start[:negated] = -truth[:negated]
@@ -237,24 +232,6 @@ def test_pinned_hops_bring_a_fit_whose_facets_cover_for_each_other_back_to_the_t
     assert losses[-1] < 1e-3 * before
 
 
-def test_low_order_heights_are_plane_free_quadratic_and_cubic_shapes():
-    """Block trials start from these: every facet the plane-free part of a shape of degree 2 and 3 in
-    the control-point coordinates, with all seven terms in use across draws, and a draw repeatable from
-    its generator."""
-    h = low_order_heights(200, 5, torch.Generator().manual_seed(0), 1.0).double()
-    assert torch.allclose(without_planes(h), h, atol=1e-5)
-    u = torch.linspace(-1.0, 1.0, 5, dtype=torch.float64)
-    y, x = torch.meshgrid(u, u, indexing="ij")
-    terms = without_planes(torch.stack([x ** i * y ** (d - i) for d in (2, 3) for i in range(d, -1, -1)]))
-    basis = terms.reshape(7, -1).T  # (25, 7)
-    coefficients = torch.linalg.lstsq(basis, h.reshape(200, -1).T).solution  # (7, 200)
-    assert torch.allclose(basis @ coefficients, h.reshape(200, -1).T, atol=1e-5)  # nothing of degree 4 up
-    assert (coefficients.abs().mean(1) > 0.5).all()  # every quadratic and cubic term drawn
-    assert torch.allclose(h.pow(2).mean((1, 2)), torch.ones(200, dtype=torch.float64))  # RMS as asked
-    assert torch.equal(low_order_heights(3, 5, torch.Generator().manual_seed(1), 0.5),
-                       low_order_heights(3, 5, torch.Generator().manual_seed(1), 0.5))
-
-
 def test_facet_blocks_are_the_2x2_windows_of_the_facet_grid():
     h = ideal_heliostat(rows=4, cols=6, width=0.8, height=0.6, gap=0.02)
     blocks = facet_blocks(h.facet_translation)
@@ -272,10 +249,10 @@ def test_facet_blocks_are_the_2x2_windows_of_the_facet_grid():
 
 @pytest.mark.slow
 def test_a_block_trial_refits_neighbours_that_cover_for_each_other():
-    """2 x 3 smooth facets with true surfaces except facets 0 and 1, which start negated, within the
-    block of facets 0, 1, 3, 4 (only that block free): a descent leaves them wrong; the block trial
-    (from random low-order states through wide blur, then a descent of everything) brings them back."""
-    s, truth, data, effects, start = negated_facets(2, 3, 2, smooth=True)
+    """2 x 3 facets with true surfaces except facets 0 and 1, which start negated, within the block of
+    facets 0, 1, 3, 4 (only that block free): a descent leaves them wrong; the block trial (from random
+    states through wide blur) brings them back."""
+    s, truth, data, effects, start = negated_facets(2, 3, 2)
     fit = _Fitter(s, data, data.images, FitSettings(steps=50, block_trials=1), [])
     masks = {"surface": torch.zeros_like(truth, dtype=torch.bool)}
     masks["surface"][[0, 1, 3, 4]] = True

@@ -40,16 +40,13 @@ heights; among fitted ones it finds the state that best complements them, which 
 everything then carries further (semi_sphere: docs/surface_search.md).
 
 Then `block_trials` block trials: the 2 x 2 block of neighbouring facets whose flux meets the most
-squared residual (not tried before) is refitted alone from random low-order states (quadratic and
-cubic shapes: the height error a fit is left with is mostly of that kind) through wide blur
-(TRIAL_BLURS_PX), everything is descended from the lowest end point, and the result is kept when the
-heliostat's loss falls. Neighbours cover for each other's wrong
-state, so a facet refitted alone returns to the state that complements them; a block refitted
-together can leave that state, and once one block is right the descent of everything carries its
-neighbours towards the truth. A block state is judged after that descent, not with the neighbours
-held: the true state of a block looks worse than the fit's while they still cover for the wrong one
-(semi_sphere: docs/surface_search.md). When a block was kept, the facet sweeps run once more: the
-facets now complement other neighbours.
+squared residual (not tried before) is refitted alone from random states through wide blur
+(TRIAL_BLURS_PX), the lowest end point kept when the heliostat's loss falls, and everything is
+descended again. Neighbours cover for each other's wrong state, so a facet refitted alone returns
+to the state that complements them; a block refitted together can leave that state, and once one
+block is right the descent of everything carries its neighbours towards the truth. When a block was
+kept, the facet sweeps run once more: the facets now complement other neighbours (semi_sphere:
+docs/surface_search.md).
 
 Then `pinned_hops` pinned hops: the facet whose flux meets the most squared residual (not tried
 before) is reset to flat and the mean tilt and pinned there while everything else descends, then
@@ -304,7 +301,7 @@ class FitSettings:
             traces of one facet for every facet, plus that descent.
         block_trials: block trials after the sweeps (module docstring); 0 = none. Each costs
             TRIAL_STARTS * len(TRIAL_BLURS_PX) * TRIAL_STEPS traces of its 4 facets, plus a descent of
-            everything; the facet sweeps run once more when any block was kept.
+            everything when its block is kept; the facet sweeps run once more when any block was.
         pinned_hops: pinned hops after the block trials (module docstring); 0 = none. Each costs
             2 * PIN_STEPS traces of the heliostat.
         gauss_newton_steps: Gauss-Newton steps after the rounds (module docstring); 0 = none.
@@ -519,19 +516,6 @@ def blur_levels(coarse_px: float) -> tuple[float, ...]:
     return (*levels, 0.0)
 
 
-def low_order_heights(count: int, control_points: int, generator: torch.Generator, rms: float) -> Tensor:
-    """(count, C, C) plane-free control heights of RMS `rms` on every facet, each a combination with
-    standard-normal weights of the monomials of degree 2 and 3 (x^2, xy, y^2, x^3, x^2 y, x y^2, y^3)
-    of the control-point coordinates x, y in [-1, 1]: a smooth random shape, what the block trials
-    start from (the height error a fit is left with is mostly of low order, docs/surface_search.md)."""
-    u = torch.linspace(-1.0, 1.0, control_points)
-    y, x = torch.meshgrid(u, u, indexing="ij")
-    monomials = torch.stack([x ** i * y ** (d - i) for d in (2, 3) for i in range(d, -1, -1)])  # (7, C, C)
-    weights = torch.randn(count, len(monomials), generator=generator)
-    heights = without_planes(torch.einsum("fm,mij->fij", weights, monomials))
-    return heights / heights.pow(2).mean((1, 2), keepdim=True).sqrt() * rms
-
-
 class _Fitter:
     """The three fitting methods over one set of measurements."""
 
@@ -679,10 +663,10 @@ class _Fitter:
                      progress: bool, label: str) -> tuple[dict, list[float]]:
         """`block_trials` block trials (module docstring): each takes the block of neighbouring facets
         (`facet_blocks`) whose facets' flux meets the most squared residual (`residual_shares`) among
-        those not tried yet, refits it alone from TRIAL_STARTS random states (`low_order_heights` and
-        tilts drawn from `generator` with the fit's own RMS) through the blur levels TRIAL_BLURS_PX,
-        descends everything from the lowest end point and keeps the result when the whole heliostat's
-        loss falls. A block with nothing free is passed over (it counts as a trial). Returns (tensors,
+        those not tried yet, refits it alone from TRIAL_STARTS random states (heights and tilts drawn
+        from `generator` with the fit's own RMS) through the blur levels TRIAL_BLURS_PX, and keeps the
+        lowest end point when the whole heliostat's loss falls; a kept block is followed by a descent
+        of everything. A block with nothing free is passed over (it counts as a trial). Returns (tensors,
         the kept loss after each block refitted)."""
         blocks = facet_blocks(self.scene.heliostat.facet_translation)
         height_rms, tilt_rms = _state_rms(tensors)
@@ -694,16 +678,15 @@ class _Fitter:
             if alone is None:
                 continue  # nothing of this block is fitted
             name = f"{label} (block trial {trial + 1})"
-            starts = (self._random_state(tensors, block, generator, height_rms, tilt_rms, False,
-                                          low_order=True)
+            starts = (self._random_state(tensors, block, generator, height_rms, tilt_rms, False)
                       for _ in range(TRIAL_STARTS))
             ends = [self._refit_alone(effects, start, *alone, block, TRIAL_BLURS_PX, TRIAL_STEPS)
                     for start in tqdm(starts, desc=name, total=TRIAL_STARTS, disable=not progress,
                                       mininterval=2.0)]
-            relaxed, _ = self.descend(effects, min(ends, key=lambda e: e[0])[1], masks, progress, name)
-            loss = self.loss(effects, relaxed)
-            if loss < best:
-                tensors, best = relaxed, loss
+            kept = min(ends, key=lambda e: e[0])[1]
+            if self.loss(effects, kept) < best:
+                tensors, _ = self.descend(effects, kept, masks, progress, name)
+                best = self.loss(effects, tensors)
             losses.append(best)
         return tensors, losses
 
@@ -737,17 +720,13 @@ class _Fitter:
         return tensors, losses
 
     def _random_state(self, tensors: dict, facets: Tensor, generator: torch.Generator, height_rms: float,
-                      tilt_rms: float, around_current_tilts: bool, low_order: bool = False) -> dict:
+                      tilt_rms: float, around_current_tilts: bool) -> dict:
         """`tensors` with random control heights (plane-free, RMS `height_rms` mm) on `facets` ((K,)
         long) and random tilts (RMS `tilt_rms` mrad) added to their current ones or, if not
-        `around_current_tilts`, to the mean tilt of the heliostat. The heights are independent per
-        control point or, if `low_order`, `low_order_heights` of RMS `height_rms` on every facet."""
+        `around_current_tilts`, to the mean tilt of the heliostat."""
         state = {k: v.clone() for k, v in tensors.items()}
         shape = state["surface"][facets].shape
-        if low_order:
-            state["surface"][facets] = low_order_heights(len(facets), shape[-1], generator, height_rms)
-        else:
-            state["surface"][facets] = without_planes(torch.randn(shape, generator=generator) * height_rms)
+        state["surface"][facets] = without_planes(torch.randn(shape, generator=generator) * height_rms)
         if "canting" in state:
             centre = state["canting"][facets] if around_current_tilts else state["canting"].mean(0)
             state["canting"][facets] = centre + torch.randn(len(facets), 2, generator=generator) * tilt_rms
