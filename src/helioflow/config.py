@@ -30,25 +30,15 @@ def load_config(path: str | Path) -> dict:
     return validate_config(config, source=str(path))
 
 
-REMOVABLE = ("datasets", "networks", "heliostats")
-OPTIONAL_SECTIONS = ("field", "diagnosis", "data_efficiency")
-
-
 def validate_config(config: dict, schema_path: str | Path = SCHEMA_PATH, source: str = "config") -> dict:
     """Check a config dict; raise one ConfigError naming key, value and what is allowed.
 
-    Returns a deep copy with the schema's defaults filled in. An entry of `datasets`, `networks`
-    or `heliostats`, or an optional section (`field`, `diagnosis`, `data_efficiency`), set to null
-    is removed: how a `--configfile` variant, which snakemake merges into config.yaml key by key,
-    leaves out a default dataset, network or stage.
+    Returns a deep copy with the schema's defaults filled in. A key set to null is removed,
+    anywhere: how a `--configfile` variant, which snakemake merges into config.yaml key by key, leaves
+    out a default dataset, network, stage, effect or setting (a key whose default is null keeps its
+    meaning). PAINT measurement ids given as numbers become strings.
     """
-    config = copy.deepcopy(config)
-    for section in OPTIONAL_SECTIONS:
-        if section in config and config[section] is None:
-            del config[section]
-    for section in REMOVABLE:
-        if isinstance(config.get(section), dict):
-            config[section] = {k: v for k, v in config[section].items() if v is not None}
+    config = _without_nulls(copy.deepcopy(config))
     schema = yaml.safe_load(Path(schema_path).read_text())
     validator = jsonschema.Draft7Validator(schema)
     errors = sorted(validator.iter_errors(config), key=lambda e: (len(e.absolute_path), list(map(str, e.absolute_path))))
@@ -56,8 +46,27 @@ def validate_config(config: dict, schema_path: str | Path = SCHEMA_PATH, source:
         raise ConfigError(f"{source}: {_describe(errors[0])}")
     config = copy.deepcopy(config)
     _fill_defaults(config, schema, schema)
+    for ds in config["datasets"].values():
+        if isinstance(ds.get("holdout"), list):
+            ds["holdout"] = [str(i) for i in ds["holdout"]]
     _check_references(config, source)
+    _check_device(config["device"], source)
     return config
+
+
+def _without_nulls(node):
+    """`node` with every mapping entry whose value is null removed, at any depth."""
+    if isinstance(node, dict):
+        return {k: _without_nulls(v) for k, v in node.items() if v is not None}
+    return node
+
+
+def _check_device(device: str, source: str) -> None:
+    import torch
+
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"{source}: device = 'cuda', but torch sees no CUDA device on this machine "
+                          f"(torch {torch.__version__}); use device: cpu, or auto (CUDA where there is one)")
 
 
 def _describe(error: jsonschema.ValidationError) -> str:
@@ -72,6 +81,10 @@ def _describe(error: jsonschema.ValidationError) -> str:
     if rule == "required":
         return f"{key}: missing key {error.message.split(' ')[0]}; required: {', '.join(expected)}"
     value = f"{key} = {error.instance!r}"
+    if rule == "pattern":
+        name = f"{key}: name {error.instance!r}" if "propertyNames" in error.schema_path else value
+        return (f"{name}: a name that becomes a file path: expected letters, digits, '_', '.' and '-', "
+                "starting with a letter or digit, without '..'")
     if rule == "enum":
         return f"{value}: allowed values are {', '.join(map(str, expected))}"
     if rule in ("minimum", "exclusiveMinimum", "maximum", "exclusiveMaximum"):
@@ -143,6 +156,7 @@ def _check_references(config: dict, source: str) -> None:
             known = ", ".join(config["heliostats"])
             raise ConfigError(f"{where}.heliostat = {ds['heliostat']!r} is not a heliostat in config; known: {known}")
         _check_traced(ds, where)
+        _check_sees_target(config, ds["heliostat"], where)
     if config.get("field"):
         _check_field(config, f"{source}: field")
 
@@ -161,6 +175,19 @@ def _check_traced(ds: dict, where: str) -> None:
     check_effects(ds.get("world_effects"), f"{where}.world_effects", allow_fit=False)
     if ds["trace"]["splat"] == "bilinear" and ds["trace"].get("rays", 0) <= 0:
         raise ConfigError(f"{where}.trace.rays = {ds['trace'].get('rays')!r}: bilinear splatting needs rays > 0")
+
+
+def _check_sees_target(config: dict, heliostat: str, where: str) -> None:
+    """The dataset's heliostat is in front of the calibration target (on the side its normal points to)."""
+    from .workflow import facing
+
+    position, target = config["heliostats"][heliostat]["position_m"], config["target"]
+    distance = facing(position, target["center_m"], target["normal"])
+    if distance <= 0:
+        place = "in the target plane" if distance == 0 else f"{-distance:g} m behind the target"
+        raise ConfigError(f"{where}: heliostat {heliostat!r} at position_m {position} is {place} (target.center_m "
+                          f"{target['center_m']}, target.normal {target['normal']} points towards the heliostats): "
+                          "it cannot see the target")
 
 
 _LAYOUT_KEYS = {"fermat": {"n", "min_radius_m", "spacing_m", "clearance_m", "sector_deg", "pivot_height_m"},
@@ -187,7 +214,8 @@ def _check_field(config: dict, where: str) -> None:
     extra = sorted(set(layout) - _LAYOUT_KEYS[kind] - {"kind"})
     if extra:
         raise ConfigError(f"{where}.layout: key {extra[0]!r} is not used by kind {kind!r}; "
-                          f"kind {kind!r} takes {', '.join(sorted(_LAYOUT_KEYS[kind]))}")
+                          f"kind {kind!r} takes {', '.join(sorted(_LAYOUT_KEYS[kind]))} (a --configfile variant that "
+                          f"changes the kind removes config.yaml's keys with {extra[0]}: null)")
     if not any(abs(x) > 0 for x in field["receiver"]["normal"]):
         raise ConfigError(f"{where}.receiver.normal = {field['receiver']['normal']}: "
                           "expected a non-zero vector")
@@ -230,6 +258,14 @@ def _check_paint_dataset(config: dict, name: str, where: str) -> None:
         if o["source"] == "paint" and o["heliostat"] == ds["heliostat"] and o["paint_dir"] != ds["paint_dir"]:
             raise ConfigError(f"{where}.paint_dir = {ds['paint_dir']!r}, but datasets.{other} takes heliostat "
                               f"{ds['heliostat']!r} from {o['paint_dir']!r}; one heliostat, one PAINT directory")
+    paint_dir = Path(ds["paint_dir"])
+    if not (paint_dir / "tower-measurements.json").is_file():
+        raise ConfigError(f"{where}.paint_dir = {ds['paint_dir']!r}: no PAINT directory there (expected a folder with "
+                          "tower-measurements.json and one folder per heliostat)")
+    if not (paint_dir / ds["heliostat"]).is_dir():
+        found = sorted(d.name for d in paint_dir.iterdir() if d.is_dir())
+        raise ConfigError(f"{where}.heliostat = {ds['heliostat']!r}: no such heliostat folder in {ds['paint_dir']}; "
+                          f"folders there: {', '.join(found) or 'none'}")
 
 
 @dataclass(frozen=True)

@@ -11,3 +11,7 @@ class ConfigError(HelioflowError):
 
 class DataError(HelioflowError):
     """An input file is missing, corrupt, truncated or holds values of the wrong shape or range."""
+
+
+class OutputError(HelioflowError):
+    """An output file cannot be written (a full disk, no permission); nothing half-written is left."""

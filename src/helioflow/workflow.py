@@ -14,6 +14,7 @@ from pathlib import Path
 from .errors import ConfigError, DataError
 
 PHYSICS_MODELS = ("raytrace", "drt")  # models that trace the heliostat file (models/physical.py)
+NAME = r"[A-Za-z0-9][A-Za-z0-9_.-]*"  # a dataset or heliostat wildcard (config validation also refuses '..')
 
 
 def results_dir(config: dict) -> str:
@@ -80,6 +81,11 @@ def trace_params(config: dict, dataset: str) -> dict:
 def paint_datasets(config: dict) -> list[str]:
     """Names of the datasets imported from PAINT (source: paint)."""
     return [d for d, ds in config["datasets"].items() if ds.get("source") == "paint"]
+
+
+def traced_datasets(config: dict) -> list[str]:
+    """Names of the datasets the `trace` rule makes (every one not imported from PAINT)."""
+    return [d for d, ds in config["datasets"].items() if ds.get("source") != "paint"]
 
 
 def paint_heliostats(config: dict) -> list[str]:
@@ -382,6 +388,51 @@ def field_datasets(config: dict) -> dict[str, dict]:
             for name in field_measured(config)}
 
 
+def facing(position_m, center_m, normal) -> float:
+    """Distance (m) of a point in front of a plane (centre, normal towards the field): > 0 when a
+    heliostat there can see the plane, <= 0 when it is in the plane or behind it."""
+    import numpy as np
+
+    n = np.asarray(normal, dtype=float)
+    return float(np.dot(np.subtract(position_m, center_m), n / np.linalg.norm(n)))
+
+
+def check_field_geometry(config: dict) -> None:
+    """ConfigError naming the heliostat when a field heliostat is behind the receiver (or, measured,
+    behind the calibration target), or when two pivots are closer than the mirror diagonal (their
+    mirrors would collide: list and csv layouts; fermat and radial keep their spacing)."""
+    import numpy as np
+
+    from .physics.layout import min_spacing
+
+    field = config["field"]
+    heliostats = field_heliostats(config)
+    measured = set(field_measured(config))
+    receiver, target = field["receiver"], config["target"]
+    for name, h in heliostats.items():
+        if facing(h["position_m"], receiver["center_m"], receiver["normal"]) <= 0:
+            raise ConfigError(f"field: heliostat {name} at {h['position_m']} is behind the receiver (field.receiver."
+                              f"center_m {receiver['center_m']}, normal {receiver['normal']}): it cannot reach it")
+        if name in measured and facing(h["position_m"], target["center_m"], target["normal"]) <= 0:
+            raise ConfigError(f"field: measured heliostat {name} at {h['position_m']} is behind the calibration target "
+                              f"(target.center_m {target['center_m']}, normal {target['normal']}): it cannot see it")
+    if field["layout"]["kind"] not in ("list", "csv"):
+        return
+    f = config["heliostats"][field["heliostat"]]["facets"]
+    gap = f.get("gap_m", 0.0)
+    diagonal = min_spacing(f["cols"] * f["width_m"] + (f["cols"] - 1) * gap, f["rows"] * f["height_m"] + (f["rows"] - 1) * gap)
+    xy = np.asarray([h["position_m"][:2] for h in heliostats.values()])
+    names = list(heliostats)
+    for start in range(0, len(xy), 1024):  # pairwise distances, a block of rows at a time
+        d = np.linalg.norm(xy[start:start + 1024, None] - xy[None], axis=-1)
+        i, j = np.nonzero((d < diagonal) & (np.arange(start, start + len(d))[:, None] < np.arange(len(xy))[None]))
+        if len(i):
+            a, b = start + int(i[0]), int(j[0])
+            raise ConfigError(f"field.layout: heliostats {names[a]} {heliostats[names[a]]['position_m']} and {names[b]} "
+                              f"{heliostats[names[b]]['position_m']} are {d[i[0], j[0]]:.2f} m apart, less than the "
+                              f"mirror diagonal {diagonal:.2f} m: their mirrors would collide")
+
+
 def expand_field(config: dict) -> dict:
     """The config with the field's generated `heliostats` and `datasets` entries added (a copy; the
     config itself without a field section). Applied right after validation (common.smk, the
@@ -391,6 +442,7 @@ def expand_field(config: dict) -> dict:
     config = copy.deepcopy(config)
     if not config.get("field"):
         return config
+    check_field_geometry(config)
     for section, entries in (("heliostats", field_heliostats(config)), ("datasets", field_datasets(config))):
         taken = sorted(set(entries) & set(config[section]))
         if taken:

@@ -7,13 +7,12 @@ import pytest
 from helioflow.data.hdf5 import (
     DATASET_SCHEMA,
     CalibrationDataset,
-    atomic_h5,
     read_arrays,
     read_dataset,
     write_arrays,
     write_dataset,
 )
-from helioflow.errors import DataError
+from helioflow.errors import DataError, OutputError
 
 
 def make_dataset(n=4, h=8, w=6) -> CalibrationDataset:
@@ -79,11 +78,16 @@ def test_generic_arrays_round_trip_and_required_key(tmp_path):
         read_arrays(path, "helioflow.test/1", required=["weights/b"])
 
 
-def test_atomic_write_leaves_nothing_when_block_raises(tmp_path):
+def test_failed_write_leaves_nothing_and_names_the_file(tmp_path, monkeypatch):
+    """A full disk while writing: no output, no temporary file holding the space, one clear error."""
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(h5py.Dataset, "__setitem__", full_disk)
+    monkeypatch.setattr(h5py.Group, "create_dataset", full_disk)
     path = tmp_path / "out.h5"
-    with pytest.raises(RuntimeError), atomic_h5(path) as f:
-        f["x"] = np.zeros(3)
-        raise RuntimeError("boom")
+    with pytest.raises(OutputError, match=r"cannot write .*out\.h5: No space left on device"):
+        write_dataset(path, make_dataset())
     assert list(tmp_path.iterdir()) == []
 
 

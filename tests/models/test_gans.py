@@ -81,23 +81,37 @@ def test_training_through_the_loop_changes_parameters(network, tmp_path):
 
 
 @pytest.mark.parametrize("network", MODELS)
-def test_resumed_training_equals_uninterrupted(network, tmp_path):
-    data = tiny_data()
+def test_resumed_training_equals_uninterrupted(network, tmp_path, train_stopped_after):
+    data, loop = tiny_data(), LoopConfig(steps=4, batch_size=4, checkpoint_every=2)
     straight = make(network)
-    train(straight, data, LoopConfig(steps=4, batch_size=4, checkpoint_every=2), tmp_path / "a.pt", progress=False)
+    train(straight, data, loop, tmp_path / "a.pt", progress=False)
 
-    first = make(network)
-    train(first, data, LoopConfig(steps=2, batch_size=4, checkpoint_every=2), tmp_path / "b.pt", progress=False)
+    train_stopped_after(make(network), data, loop, tmp_path / "b.pt", steps_done=3)  # checkpoint of step 2
     torch.manual_seed(123)  # a fresh model with other initial weights: everything comes from the checkpoint
-    resumed = MODELS[network][0](first.config, first.image_shape)
-    curve = train(resumed, data, LoopConfig(steps=4, batch_size=4, checkpoint_every=2), tmp_path / "b.pt",
-                  progress=False)
+    resumed = MODELS[network][0](straight.config, straight.image_shape)
+    curve = train(resumed, data, loop, tmp_path / "b.pt", progress=False)
 
     assert [row["step"] for row in curve] == [0, 1, 2, 3]
     a, b = straight.state_dict(), resumed.state_dict()
     assert a.keys() == b.keys()
     for k in a:
         assert torch.equal(a[k], b[k]), k
+
+
+def test_a_run_resumed_with_fewer_steps_equals_a_clean_run(tmp_path, train_stopped_after):
+    """Killed at step 4 of 6, `steps` lowered to 3, rerun: the model and the curve are those of a
+    clean 3-step run (the step-4 checkpoint is not resumed)."""
+    data = tiny_data()
+    train_stopped_after(make("cgan"), data, LoopConfig(steps=6, batch_size=4, checkpoint_every=2), tmp_path / "k.pt",
+                        steps_done=4)
+    three = LoopConfig(steps=3, batch_size=4, checkpoint_every=2)
+    rerun, clean = make("cgan"), make("cgan")
+    curve = train(rerun, data, three, tmp_path / "k.pt", progress=False)
+    clean_curve = train(clean, data, three, tmp_path / "clean.pt", progress=False)
+
+    assert curve == clean_curve and [row["step"] for row in curve] == [0, 1, 2]
+    for k, v in clean.state_dict().items():
+        assert torch.equal(rerun.state_dict()[k], v), k
 
 
 @pytest.mark.parametrize("changed", [{"features": 8}, {"lr": 1e-3}], ids=["architecture", "learning_rate"])

@@ -71,17 +71,15 @@ def test_two_training_steps_through_the_shared_loop(tmp_path):
     assert int(model.steps_done) == 2 and (tmp_path / "ckpt").exists()
 
 
-def test_resumed_training_equals_uninterrupted_training(tmp_path):
+def test_resumed_training_equals_uninterrupted_training(tmp_path, train_stopped_after):
     data = tiny_data()
     torch.manual_seed(0)
     straight = SpotNeRF(TINY, SHAPE)
     four = LoopConfig(steps=4, batch_size=3, checkpoint_every=2)
-    two = LoopConfig(steps=2, batch_size=3, checkpoint_every=2)
     train(straight, data, four, tmp_path / "a.ckpt", progress=False)
 
     torch.manual_seed(0)
-    first = SpotNeRF(TINY, SHAPE)
-    train(first, data, two, tmp_path / "b.ckpt", progress=False)
+    train_stopped_after(SpotNeRF(TINY, SHAPE), data, four, tmp_path / "b.ckpt", steps_done=3)  # checkpoint of step 2
     torch.manual_seed(1)  # the resumed model's own initialisation must not matter
     resumed = SpotNeRF(TINY, SHAPE)
     curve = train(resumed, data, four, tmp_path / "b.ckpt", progress=False)

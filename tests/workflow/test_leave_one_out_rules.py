@@ -72,7 +72,7 @@ def test_rule_inputs_list_every_fold_per_network_and_the_report_takes_the_summar
 
 @pytest.mark.parametrize("edit, message", [
     ({"targets": ["solar_tower_juelich_upper"]}, "at least two measurements; .*AA39 has 0 on targets"),
-    ({"heliostat": "AB99"}, "leave_one_out needs the measurement ids: .*AB99 does not exist"),
+    ({"heliostat": "AB99"}, "heliostat = .AB99.: no such heliostat folder in .*; folders there: AA23"),
 ])
 def test_leave_one_out_without_enough_images_is_a_config_error(edit, message):
     with pytest.raises(ConfigError, match=message):

@@ -4,9 +4,10 @@ import sys
 
 from helioflow.config import validate_config
 from helioflow.errors import ConfigError
-from helioflow.workflow import expand_config
 from helioflow.workflow import (
+    NAME,
     all_targets,
+    expand_config,
     dataset_heliostat,
     diagnose_params,
     heliostat_path,
@@ -25,6 +26,7 @@ from helioflow.workflow import (
     results_dir,
     surfaces_params,
     trace_params,
+    traced_datasets,
     train_inputs,
     train_params,
 )
@@ -37,9 +39,12 @@ except ConfigError as exc:
     sys.exit(f"helioflow: config error: {exc}")
 
 RESULTS = results_dir(config)
+# torch CPU threads of every job that computes: fixed by config, not by `-j`, so that the same config
+# gives the same results however many jobs run at once
+TORCH_THREADS = config["torch_threads"]
 
 
 wildcard_constraints:
-    dataset=r"[A-Za-z0-9_-]+",
-    heliostat=r"[A-Za-z0-9_-]+",
+    dataset=NAME,
+    heliostat=NAME,
     model=r"[a-z]+(-n[0-9]+)?",

@@ -26,15 +26,16 @@ rule diagnose:
             category="Diagnosis",
         ),
     params:
+        torch_threads=TORCH_THREADS,
         spec=lambda wc: json.dumps(diagnose_params(config, wc.dataset)),
         ledger=lambda wc: f"{RESULTS}/ledger/{wc.dataset}.json",
     log:
         f"{RESULTS}/logs/diagnose/{{dataset}}.log",
     benchmark:
         f"{RESULTS}/benchmarks/diagnose/{{dataset}}.tsv"
-    threads: 2
+    threads: TORCH_THREADS
     shell:
-        "helioflow --threads {threads} diagnose --spec {params.spec:q} --dataset {input.dataset}"
-        " --heliostat {input.heliostat} --output {output.diagnosis} --ledger {params.ledger}"
-        " --signatures {output.signatures} --ranking {output.ranking} --residuals {output.residuals}"
-        " --ledger-figure {output.ledger} > {log} 2>&1"
+        "helioflow --threads {params.torch_threads} diagnose --spec {params.spec:q} --dataset {input.dataset:q}"
+        " --heliostat {input.heliostat:q} --output {output.diagnosis:q} --ledger {params.ledger:q}"
+        " --signatures {output.signatures:q} --ranking {output.ranking:q} --residuals {output.residuals:q}"
+        " --ledger-figure {output.ledger:q} > {log:q} 2>&1"

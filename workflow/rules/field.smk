@@ -13,13 +13,14 @@ rule compose_field:
         figure=report(f"{RESULTS}/field/flux.png", caption="../report/field.rst", category="Field"),
         metrics=f"{RESULTS}/field/metrics.json",
     params:
+        torch_threads=TORCH_THREADS,
         spec=lambda wc: json.dumps(compose_field_params(config)),
     log:
         f"{RESULTS}/logs/compose_field/compose_field.log",
     benchmark:
         f"{RESULTS}/benchmarks/compose_field/compose_field.tsv"
-    threads: 2
+    threads: TORCH_THREADS
     shell:
-        "helioflow --threads {threads} compose-field --spec {params.spec:q} --models {input.models}"
-        " --datasets {input.datasets} --flux {output.flux} --figure {output.figure}"
-        " --metrics {output.metrics} > {log} 2>&1"
+        "helioflow --threads {params.torch_threads} compose-field --spec {params.spec:q} --models {input.models:q}"
+        " --datasets {input.datasets:q} --flux {output.flux:q} --figure {output.figure:q}"
+        " --metrics {output.metrics:q} > {log:q} 2>&1"

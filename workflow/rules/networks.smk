@@ -7,15 +7,16 @@ rule train:
         curve=f"{RESULTS}/models/{{dataset}}/{{model}}_curve.csv",
         curve_figure=f"{RESULTS}/models/{{dataset}}/{{model}}_curve.png",
     params:
+        torch_threads=TORCH_THREADS,
         spec=lambda wc: json.dumps(train_params(config, wc.dataset, wc.model)),
     log:
         f"{RESULTS}/logs/train/{{dataset}}/{{model}}.log",
     benchmark:
         f"{RESULTS}/benchmarks/train/{{dataset}}/{{model}}.tsv"
-    threads: 2
+    threads: TORCH_THREADS
     shell:
-        "helioflow --threads {threads} train --spec {params.spec:q} --dataset {input.dataset}"
-        " --output {output.model} --curve {output.curve} --curve-figure {output.curve_figure} > {log} 2>&1"
+        "helioflow --threads {params.torch_threads} train --spec {params.spec:q} --dataset {input.dataset:q}"
+        " --output {output.model:q} --curve {output.curve:q} --curve-figure {output.curve_figure:q} > {log:q} 2>&1"
 
 
 rule evaluate:
@@ -37,16 +38,17 @@ rule evaluate:
             category="Networks",
         ),
     params:
+        torch_threads=TORCH_THREADS,
         spec=lambda wc: json.dumps(evaluate_params(config)),
     log:
         f"{RESULTS}/logs/evaluate/{{dataset}}/{{model}}.log",
     benchmark:
         f"{RESULTS}/benchmarks/evaluate/{{dataset}}/{{model}}.tsv"
-    threads: 1
+    threads: TORCH_THREADS
     shell:
-        "helioflow --threads {threads} evaluate --spec {params.spec:q} --model {input.model}"
-        " --dataset {input.dataset} --metrics {output.metrics} --per-image {output.per_image}"
-        " --grid {output.grid} --psnr {output.psnr} > {log} 2>&1"
+        "helioflow --threads {params.torch_threads} evaluate --spec {params.spec:q} --model {input.model:q}"
+        " --dataset {input.dataset:q} --metrics {output.metrics:q} --per-image {output.per_image:q}"
+        " --grid {output.grid:q} --psnr {output.psnr:q} > {log:q} 2>&1"
 
 
 rule recovery:
@@ -57,14 +59,16 @@ rule recovery:
         dataset=f"{RESULTS}/datasets/{{dataset}}.h5",
     output:
         f"{RESULTS}/recovery/{{dataset}}.json",
+    params:
+        torch_threads=TORCH_THREADS,
     log:
         f"{RESULTS}/logs/recovery/{{dataset}}.log",
     benchmark:
         f"{RESULTS}/benchmarks/recovery/{{dataset}}.tsv"
-    threads: 1
+    threads: TORCH_THREADS
     shell:
-        "helioflow recovery --model {input.model} --heliostat {input.heliostat} --dataset {input.dataset}"
-        " --output {output} > {log} 2>&1"
+        "helioflow --threads {params.torch_threads} recovery --model {input.model:q} --heliostat {input.heliostat:q}"
+        " --dataset {input.dataset:q} --output {output:q} > {log:q} 2>&1"
 
 
 rule table:
@@ -82,7 +86,7 @@ rule table:
         f"{RESULTS}/benchmarks/table/table1.tsv"
     threads: 1
     shell:
-        "helioflow table --metrics {input.metrics} --csv {output.csv} --markdown {output.markdown} > {log} 2>&1"
+        "helioflow table --metrics {input.metrics:q} --csv {output.csv:q} --markdown {output.markdown:q} > {log:q} 2>&1"
 
 
 rule data_efficiency:
@@ -104,4 +108,4 @@ rule data_efficiency:
         f"{RESULTS}/benchmarks/data_efficiency/data_efficiency.tsv"
     threads: 1
     shell:
-        "helioflow data-efficiency --metrics {input.metrics} --figure {output.figure} --csv {output.csv} > {log} 2>&1"
+        "helioflow data-efficiency --metrics {input.metrics:q} --figure {output.figure:q} --csv {output.csv:q} > {log:q} 2>&1"

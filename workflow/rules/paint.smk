@@ -1,8 +1,6 @@
 # Real calibration data imported from PAINT directories (datasets with `source: paint`). Their
 # datasets and heliostat geometries have the same paths as traced ones: the wildcard constraints
-# keep these rules to the PAINT names, and ruleorder gives them precedence where both match.
-ruleorder: import_paint > trace
-ruleorder: paint_heliostat > surfaces
+# keep these rules to the PAINT names, and trace / surfaces to the others.
 
 
 rule import_paint:
@@ -21,7 +19,7 @@ rule import_paint:
         f"{RESULTS}/benchmarks/import_paint/{{dataset}}.tsv"
     threads: 1
     shell:
-        "helioflow import-paint --spec {params.spec:q} --output {output.dataset} > {log} 2>&1"
+        "helioflow import-paint --spec {params.spec:q} --output {output.dataset:q} > {log:q} 2>&1"
 
 
 rule paint_heliostat:
@@ -40,7 +38,7 @@ rule paint_heliostat:
         f"{RESULTS}/benchmarks/paint_heliostat/{{heliostat}}.tsv"
     threads: 1
     shell:
-        "helioflow import-paint --spec {params.spec:q} --heliostat-output {output.geometry} > {log} 2>&1"
+        "helioflow import-paint --spec {params.spec:q} --heliostat-output {output.geometry:q} > {log:q} 2>&1"
 
 
 rule paint_centroids:
@@ -52,14 +50,16 @@ rule paint_centroids:
         centroids=f"{RESULTS}/paint/{{dataset}}_centroids.json",
     wildcard_constraints:
         dataset=name_pattern(paint_datasets(config)),
+    params:
+        torch_threads=TORCH_THREADS,
     log:
         f"{RESULTS}/logs/paint_centroids/{{dataset}}.log",
     benchmark:
         f"{RESULTS}/benchmarks/paint_centroids/{{dataset}}.tsv"
-    threads: 1
+    threads: TORCH_THREADS
     shell:
-        "helioflow --threads {threads} paint-centroids --dataset {input.dataset}"
-        " --heliostat {input.heliostat} --output {output.centroids} > {log} 2>&1"
+        "helioflow --threads {params.torch_threads} paint-centroids --dataset {input.dataset:q}"
+        " --heliostat {input.heliostat:q} --output {output.centroids:q} > {log:q} 2>&1"
 
 
 rule leave_one_out:
@@ -76,12 +76,13 @@ rule leave_one_out:
     wildcard_constraints:
         dataset=name_pattern(list(leave_one_out_groups(config))),
     params:
+        torch_threads=TORCH_THREADS,
         inputs=lambda wc: json.dumps(leave_one_out_inputs(config, wc.dataset)),
     log:
         f"{RESULTS}/logs/leave_one_out/{{dataset}}.log",
     benchmark:
         f"{RESULTS}/benchmarks/leave_one_out/{{dataset}}.tsv"
-    threads: 1
+    threads: TORCH_THREADS
     shell:
-        "helioflow --threads {threads} leave-one-out --inputs {params.inputs:q} --csv {output.csv}"
-        " --figure {output.figure} > {log} 2>&1"
+        "helioflow --threads {params.torch_threads} leave-one-out --inputs {params.inputs:q} --csv {output.csv:q}"
+        " --figure {output.figure:q} > {log:q} 2>&1"

@@ -19,5 +19,5 @@ rule report:
         f"{RESULTS}/benchmarks/report/report.tsv"
     threads: 1
     shell:
-        "helioflow report --inputs {params.inputs:q} --benchmarks {params.benchmarks}"
-        " --experiment {params.experiment:q} --output {output.html} > {log} 2>&1"
+        "helioflow report --inputs {params.inputs:q} --benchmarks {params.benchmarks:q}"
+        " --experiment {params.experiment:q} --output {output.html:q} > {log:q} 2>&1"

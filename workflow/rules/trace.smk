@@ -4,16 +4,19 @@ rule trace:
         heliostat=lambda wc: f"{RESULTS}/surfaces/{dataset_heliostat(config, wc.dataset)}.h5",
     output:
         dataset=f"{RESULTS}/datasets/{{dataset}}.h5",
+    wildcard_constraints:
+        dataset=name_pattern(traced_datasets(config)),
     params:
+        torch_threads=TORCH_THREADS,
         spec=lambda wc: json.dumps(trace_params(config, wc.dataset)),
     log:
         f"{RESULTS}/logs/trace/{{dataset}}.log",
     benchmark:
         f"{RESULTS}/benchmarks/trace/{{dataset}}.tsv"
-    threads: 2
+    threads: TORCH_THREADS
     shell:
-        "helioflow --threads {threads} trace --spec {params.spec:q} --heliostat {input.heliostat}"
-        " --output {output.dataset} > {log} 2>&1"
+        "helioflow --threads {params.torch_threads} trace --spec {params.spec:q} --heliostat {input.heliostat:q}"
+        " --output {output.dataset:q} > {log:q} 2>&1"
 
 
 rule plot_dataset:
@@ -34,4 +37,4 @@ rule plot_dataset:
         f"{RESULTS}/benchmarks/plot_dataset/{{dataset}}.tsv"
     threads: 1
     shell:
-        "helioflow plot-dataset --dataset {input.dataset} --samples {params.samples} --output {output.figure} > {log} 2>&1"
+        "helioflow plot-dataset --dataset {input.dataset:q} --samples {params.samples:q} --output {output.figure:q} > {log:q} 2>&1"

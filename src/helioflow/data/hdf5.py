@@ -10,7 +10,7 @@ Calibration datasets (schema ``helioflow.dataset/1``) are laid out as::
     root attributes    the dataset's attrs plus ``schema``
 
 Other file kinds use the generic ``write_arrays`` / ``read_arrays`` with their own schema string.
-Every write is atomic (temporary sibling file renamed into place); every read failure caused by a
+Every write is atomic (helioflow.io.write_atomic); every read failure caused by a
 missing, corrupt or malformed file raises one ``DataError`` naming the file and what was expected.
 """
 
@@ -18,8 +18,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterable, Iterator
-from contextlib import contextmanager
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,32 +26,13 @@ import h5py
 import numpy as np
 
 from helioflow.errors import DataError
+from helioflow.io import write_atomic
 
 SPLITS = ("train", "interpolation", "extrapolation")
 DATASET_SCHEMA = "helioflow.dataset/1"
 
 _JSON_PREFIX = "json:"
 _UNITS = {"images": "W/m^2", "sun/azimuth_deg": "deg", "sun/elevation_deg": "deg"}
-
-
-@contextmanager
-def atomic_h5(path: str | os.PathLike) -> Iterator[h5py.File]:
-    """Yield an h5py.File open for writing that appears at ``path`` only if the block succeeds.
-
-    The file is written to ``<stem>.<pid>.tmp.h5`` beside ``path`` (parent directories are
-    created) and renamed onto ``path`` when the block exits cleanly; on an exception the
-    temporary file is deleted and ``path`` is left untouched.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.h5")
-    try:
-        with h5py.File(tmp, "w") as f:
-            yield f
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
 
 
 def _encode_attr(key: str, value):
@@ -96,7 +76,11 @@ def write_arrays(
     """
     if "schema" in attrs:
         raise DataError(f"{path}: attribute name 'schema' is reserved; rename that attribute")
-    with atomic_h5(path) as f:
+    write_atomic(path, lambda tmp: _write_h5(tmp, arrays, attrs, schema, units))
+
+
+def _write_h5(path: Path, arrays: dict[str, np.ndarray], attrs: dict, schema: str, units: dict[str, str] | None) -> None:
+    with h5py.File(path, "w") as f:
         for key, value in arrays.items():
             arr = np.asarray(value)
             if arr.dtype.kind in "UO":
@@ -196,10 +180,7 @@ def _validate(ds: CalibrationDataset, path) -> None:
         shape = np.shape(arr)
         if shape[:1] != (n,):
             raise DataError(f"{path}: extras/{name} has shape {shape}, expected leading dimension {n}")
-    if not np.isfinite(images).all():
-        raise DataError(f"{path}: images contain NaN or infinite flux; expected finite W/m^2")
-    if (images < 0).any():
-        raise DataError(f"{path}: images contain negative flux (min {images.min():g}); expected >= 0")
+    _check_images(images, path, ds)
     if not np.isfinite(ds.azimuth_deg).all():
         raise DataError(f"{path}: azimuth_deg contains NaN or infinite values")
     elevation = np.asarray(ds.elevation_deg)
@@ -212,6 +193,27 @@ def _validate(ds: CalibrationDataset, path) -> None:
     unknown = sorted(set(np.asarray(ds.split).tolist()) - set(SPLITS))
     if unknown:
         raise DataError(f"{path}: unknown split labels {unknown}; expected only {SPLITS}")
+
+
+def _check_images(images: np.ndarray, path, ds: CalibrationDataset) -> None:
+    """Every image holds finite, non-negative flux that is not the same in every pixel (all zero,
+    or saturated): such an image carries no focal spot and would only flatter the scores."""
+    flat = images.reshape(len(images), -1)
+
+    def where(i: int) -> str:
+        return (f"image {i} (split {ds.split[i]}, sun azimuth {float(ds.azimuth_deg[i]):.2f} deg, "
+                f"elevation {float(ds.elevation_deg[i]):.2f} deg)")
+
+    for bad, problem in ((~np.isfinite(flat).all(1), "holds NaN or infinite flux; expected finite W/m^2"),
+                         (np.isfinite(flat).all(1) & (flat.min(1, initial=0) < 0), "holds negative flux; expected >= 0")):
+        if bad.any():
+            raise DataError(f"{path}: {where(int(np.flatnonzero(bad)[0]))} {problem} ({int(bad.sum())} such image(s))")
+    uniform = flat.max(1, initial=0) <= flat.min(1, initial=0)
+    if uniform.any():
+        i = int(np.flatnonzero(uniform)[0])
+        what = "is all zero" if flat[i].max(initial=0) == 0 else f"is {flat[i][0]:g} W/m^2 in every pixel (saturated?)"
+        raise DataError(f"{path}: {where(i)} {what}: it shows no focal spot ({int(uniform.sum())} such image(s), "
+                        f"indices {np.flatnonzero(uniform)[:10].tolist()}); remove it or repair the measurement")
 
 
 def write_dataset(path: str | os.PathLike, ds: CalibrationDataset) -> None:

@@ -233,6 +233,10 @@ def read_flux_png(path: Path) -> np.ndarray:
         raise DataError(f"{path}: not a readable PNG image (corrupt or truncated?): {exc}") from None
     if array.ndim != 2 or min(array.shape) < 2:
         raise DataError(f"{path}: image has shape {array.shape}, expected a 2-D greyscale image")
+    if array.max() <= array.min():
+        level = "black (all zero)" if array.max() == 0 else f"grey level {array.max():g} in every pixel (saturated?)"
+        raise DataError(f"{path}: the image is {level}: it shows no focal spot; remove this measurement "
+                        "(its calibration-properties.json and PNG) or repair the image")
     return array / (65535.0 if sixteen else 255.0)
 
 

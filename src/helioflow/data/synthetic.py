@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from .. import __version__
+from ..errors import DataError
 from ..physics.effects import Physics, resolve
 from ..physics.geometry import normalize
 from ..physics.heliostat import canting_focal_distance
@@ -90,6 +91,7 @@ def trace_dataset(spec: dict, heliostat_path: str | os.PathLike, output_path: st
         log.info("auto window: %.3f m", window)
     target = Target(centre, normal, window, window, tuple(t["resolution"]))
     images = trace_images(physics, heliostat, target, az, el, settings, spec["seed"])
+    check_on_target(images, az_deg, el_deg, spec["dataset"])
     fill = (images > FILL_THRESHOLD * images.amax((-2, -1), keepdim=True)).double().mean((-2, -1)).cpu().numpy()
     log.info("fill fraction (pixels above %.0f%% of the peak): min %.3f, median %.3f", 100 * FILL_THRESHOLD,
              fill.min(), np.median(fill))
@@ -127,6 +129,17 @@ def trace_dataset(spec: dict, heliostat_path: str | os.PathLike, output_path: st
     return dataset
 
 
+def check_on_target(images: torch.Tensor, az_deg: np.ndarray, el_deg: np.ndarray, dataset: str) -> None:
+    """DataError when a traced image (S, H, W) holds no flux (or non-finite flux): its spot misses
+    the target window, and the dataset would hold empty images."""
+    empty = ~(images.flatten(1).isfinite().all(1) & (images.flatten(1).amax(1) > 0)).cpu().numpy()
+    if empty.any():
+        i = int(np.flatnonzero(empty)[0])
+        raise DataError(f"dataset {dataset!r}: the spot misses the target window in {int(empty.sum())} of {len(empty)} "
+                        f"images (first: sun azimuth {az_deg[i]:.2f} deg, elevation {el_deg[i]:.2f} deg); check the "
+                        "heliostat's position_m, target.center_m and normal, and the dataset's window_m")
+
+
 def trace_images(physics: Physics, heliostat, target: Target, az, el, settings: dict, seed: int,
                  batch: int = 16) -> torch.Tensor:
     """(S, H, W) measured images (world physics + camera), traced in batches of sun positions."""
@@ -157,4 +170,7 @@ def auto_window(physics: Physics, heliostat, centre, normal, az, el, settings: d
     inside = images > FILL_THRESHOLD * images.amax((-2, -1), keepdim=True)
     half = torch.maximum((inside * u.abs()[None, None, :]).amax((-2, -1)), (inside * v.abs()[None, :, None]).amax((-2, -1)))
     side = 2 * (float(half.max()) + target.pixel_size[0]) * 1.1
+    if not math.isfinite(side) or not images.isfinite().all() or float(images.amax()) <= 0:
+        raise DataError(f"window_m: auto could not size the target window: no flux reaches the target plane within "
+                        f"{first:.1f} m of its centre; check the heliostat's position_m and target.center_m and normal")
     return math.ceil(side * 100) / 100

@@ -33,6 +33,7 @@ import torch
 from torch import Tensor
 
 from ..data.hdf5 import read_dataset
+from ..errors import DataError
 from ..data.surfaces import read_heliostat
 from ..models.physics_fit import (
     FitResult,
@@ -45,7 +46,7 @@ from ..models.physics_fit import (
 )
 from ..physics.effects import FIT, REGISTRY
 from ..physics.target import centroid
-from .atomic import write_text_atomic
+from ..io import write_text_atomic
 
 log = logging.getLogger(__name__)
 
@@ -287,12 +288,29 @@ def summarise(sig: dict[str, np.ndarray]) -> dict:
             "ratio": float(np.median(sig["energy_ratio"]))}
 
 
+def read_ledger(path: str | os.PathLike) -> list[dict]:
+    """The revisions in the ledger at `path` (none when it does not exist yet); DataError names the
+    file when it is not a ledger. Read before the fits, so that a broken ledger costs no run."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    try:
+        entries = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DataError(f"{path}: not a readable ledger (JSON list of model revisions): {exc}; "
+                        "repair it or delete it to start a new ledger") from None
+    keys = ("revision", "model_hash", "dataset_hash", "model_effects", "heldout_error")
+    if not isinstance(entries, list) or not all(isinstance(e, dict) and all(k in e for k in keys) for e in entries):
+        raise DataError(f"{path}: expected a JSON list of model revisions, each with {', '.join(keys)}; "
+                        "repair it or delete it to start a new ledger")
+    return entries
+
+
 def update_ledger(path: str | os.PathLike, dataset_hash: str, effects: dict, error: float) -> list[dict]:
     """Record the held-out error of this model revision in the ledger at `path` (JSON list, kept
     across runs: not a rule output) and return the revisions on the same measurements, oldest
     first. A revision is keyed by the hash of the model effect list; a rerun replaces its entry."""
-    path = Path(path)
-    entries = json.loads(path.read_text()) if path.exists() else []
+    entries = read_ledger(path)
     key = model_hash(effects)
     same = [e for e in entries if e["dataset_hash"] == dataset_hash]
     entry = next((e for e in same if e["model_hash"] == key), None)
@@ -321,6 +339,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     from .diagnosis_figures import plot_diagnosis
 
     ds = read_dataset(dataset_path)
+    read_ledger(ledger_path)  # a broken ledger stops the rule before the fits, not after them
     train_index = ds.indices("train")
     heldout_index = np.concatenate((ds.indices("interpolation"), ds.indices("extrapolation")))
     scale = float(ds.images[train_index].max())

@@ -9,7 +9,7 @@ import os
 from pathlib import Path
 
 from ..workflow import parse_model
-from .atomic import write_text_atomic
+from ..io import write_text_atomic
 from .figures import plt, save_figure
 
 SPLITS_SHOWN = ("interpolation", "extrapolation")

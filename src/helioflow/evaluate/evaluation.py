@@ -26,7 +26,7 @@ import torch
 
 from ..data.hdf5 import SPLITS, CalibrationDataset, read_dataset
 from ..errors import DataError
-from .atomic import write_text_atomic
+from ..io import write_text_atomic
 from .figures import plt, save_figure
 from .metrics import METRICS, PSNR_MAX_DB, image_metrics, psnr
 

@@ -53,7 +53,7 @@ from ..physics.geometry import azimuth_elevation, normalize, sun_vector
 from ..physics.heliostat import Heliostat
 from ..physics.raytrace import Optics, trace
 from ..physics.target import Target
-from .atomic import write_text_atomic
+from ..io import write_text_atomic
 from .field_figure import plot_field_maps
 from .field_metrics import map_metrics, mean_metrics, spot_metrics
 

@@ -12,16 +12,15 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from ..data.hdf5 import read_dataset
+from ..io import write_atomic
 
 
 def save_figure(fig, path: str | os.PathLike) -> None:
-    """Save a figure atomically (temporary name, then rename) and close it."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    os.replace(tmp, path)
+    """Save a figure as PNG, written whole (helioflow.io.write_atomic), and close it."""
+    try:
+        write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight"))
+    finally:
+        plt.close(fig)
 
 
 def plot_dataset_samples(dataset_path: str | os.PathLike, output_path: str | os.PathLike, n: int = 12) -> None:

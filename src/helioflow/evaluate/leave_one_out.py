@@ -20,7 +20,7 @@ import torch
 
 from ..data.hdf5 import read_dataset
 from ..errors import DataError
-from .atomic import write_text_atomic
+from ..io import write_text_atomic
 from .diagnose import misplaced_flux
 from .figures import plt, save_figure
 

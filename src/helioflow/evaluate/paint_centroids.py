@@ -26,7 +26,7 @@ from ..errors import DataError
 from ..physics.effects import resolve
 from ..physics.raytrace import trace
 from ..physics.target import Target, centroid
-from .atomic import write_text_atomic
+from ..io import write_text_atomic
 
 DEFAULT_SUNSHAPE = {"kind": "pillbox", "half_angle_mrad": 4.65}
 SHAPE_THRESHOLD = 0.1  # spot moments use the pixels above this fraction of the image's peak

@@ -35,7 +35,7 @@ from ..errors import DataError
 from ..models.registry import load_model
 from ..physics.geometry import sun_vector
 from ..physics.heliostat import bspline_basis, orientation
-from .atomic import write_text_atomic
+from ..io import write_text_atomic
 from .evaluation import scored_images
 from .metrics import psnr
 

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..data.hdf5 import SPLITS, read_dataset
 from ..errors import DataError
-from .atomic import write_text_atomic
+from ..io import write_text_atomic
 from .report_diagnosis import diagnosis_section, ledger_section
 from .report_html import (
     download,

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..data.hdf5 import SPLITS
 from ..errors import DataError
-from .atomic import write_text_atomic
+from ..io import write_text_atomic
 
 NETWORK_ORDER = ("nearest", "gan", "cgan", "nerf")
 DASH = "–"

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from ..checks import check_ranges
 from .base import SpotModel, sun_features
 from .dcgan import Discriminator, GanConfig, Generator, adam_pair, adversarial_step
 
@@ -50,6 +51,10 @@ class CganConfig(GanConfig):
     lr: float = 1e-3
     cond_embed: int = 16
     l1_weight: float = 100.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_ranges(self, at_least_one=("cond_embed",), non_negative=("l1_weight",))
 
 
 class ConditionalGAN(SpotModel):

@@ -43,6 +43,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from ..checks import check_ranges, check_types
 from ..errors import ConfigError
 from .base import SpotModel
 
@@ -74,6 +75,11 @@ class GanConfig:
     beta1: float = 0.5
     beta2: float = 0.999
     real_label: float = 1.0
+
+    def __post_init__(self) -> None:
+        check_types(self)
+        check_ranges(self, at_least_one=("latent", "features", "max_mult"), positive=("lr",),
+                     below_one=("beta1", "beta2"), fraction=("real_label",))
 
 
 def halvings(image_shape: tuple[int, int]) -> int:

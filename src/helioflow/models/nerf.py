@@ -125,6 +125,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from ..checks import check_ranges, check_types
 from ..errors import ConfigError
 from ..physics.geometry import normalize, plane_axes
 from ..physics.heliostat import MOUNTS, REST_FRAME, ideal_joint_angles, joint_rotation
@@ -182,22 +183,16 @@ class NerfConfig:
     canting_focal_distance_m: float | None = None
 
     def __post_init__(self) -> None:
-        for key in ("width", "depth", "samples", "rays", "chunk", "warmup_steps", "decay_steps"):
-            if int(getattr(self, key)) < 1:
-                raise ConfigError(f"networks.nerf.{key} = {getattr(self, key)}: expected an integer >= 1")
-        for key in ("frequencies", "view_frequencies"):
-            if int(getattr(self, key)) < 0:
-                raise ConfigError(f"networks.nerf.{key} = {getattr(self, key)}: expected an integer >= 0")
-        for key in ("slab", "scene_scale", "lr", "lr_final"):
-            if not float(getattr(self, key)) > 0:
-                raise ConfigError(f"networks.nerf.{key} = {getattr(self, key)}: expected a number > 0")
+        check_types(self)
+        check_ranges(self, at_least_one=("width", "depth", "samples", "rays", "chunk", "warmup_steps", "decay_steps"),
+                     non_negative=("frequencies", "view_frequencies"), positive=("slab", "scene_scale", "lr", "lr_final"))
         if self.mount not in MOUNTS:
-            raise ConfigError(f"networks.nerf.mount = {self.mount!r}: expected one of {', '.join(MOUNTS)}")
+            raise ConfigError(f"mount = {self.mount!r}: expected one of {', '.join(MOUNTS)}")
         for key in ("heliostat_position_m", "aim_point_m", "target_normal"):
             if len(getattr(self, key)) != 3:
-                raise ConfigError(f"networks.nerf.{key} = {getattr(self, key)}: expected three numbers (ENU)")
+                raise ConfigError(f"{key} = {getattr(self, key)}: expected three numbers (ENU)")
         if self.canting_focal_distance_m is not None and not float(self.canting_focal_distance_m) > 0:
-            raise ConfigError(f"networks.nerf.canting_focal_distance_m = {self.canting_focal_distance_m}: "
+            raise ConfigError(f"canting_focal_distance_m = {self.canting_focal_distance_m}: "
                               "expected a distance > 0 (m) or null for flat mirrors")
 
 

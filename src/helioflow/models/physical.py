@@ -26,7 +26,7 @@ import torch
 from torch import Tensor
 
 from ..data.surfaces import read_heliostat
-from ..errors import ConfigError
+from ..checks import check_ranges, check_types
 from ..physics.effects import FIT, REGISTRY, check_effects
 from ..physics.heliostat import Heliostat
 from .base import SpotModel, TrainingData
@@ -89,12 +89,10 @@ class PhysicsConfig:
 
     def __post_init__(self):
         check_effects(self.effects, "model.effects", allow_fit=True)
-        for key in ("fit_steps", "fit_images", "cells_per_side", "rounds", "fit_rays"):
-            if not (isinstance(getattr(self, key), int) and getattr(self, key) >= 1):
-                raise ConfigError(f"{key} = {getattr(self, key)!r}: expected an integer >= 1")
-        for key in ("facet_hops", "facet_sweeps", "block_trials", "pinned_hops", "gauss_newton_steps"):
-            if not (isinstance(getattr(self, key), int) and getattr(self, key) >= 0):
-                raise ConfigError(f"{key} = {getattr(self, key)!r}: expected an integer >= 0")
+        check_types(self)
+        check_ranges(self, at_least_one=("fit_steps", "fit_images", "cells_per_side", "rounds", "fit_rays"),
+                     non_negative=("facet_hops", "facet_sweeps", "block_trials", "pinned_hops", "gauss_newton_steps",
+                                   "coarse_blur_px"))
 
 
 def drt_effects(effects: dict, n_facets: int) -> dict:

@@ -81,8 +81,8 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from ..evaluate.atomic import save_torch_atomic
-from ..fingerprint import fingerprint
+from ..errors import DataError
+from ..io import fingerprint, load_torch, save_torch_atomic
 from ..physics.effects import FIT, REGISTRY, fitted_parameters, resolve
 from ..physics.heliostat import Heliostat, without_planes
 from ..physics.raytrace import trace
@@ -442,7 +442,11 @@ class FitCheckpoint:
         self.stage = 0  # stages met so far
         self.saved: dict | None = None
         if self.path is not None and self.path.exists():
-            state = torch.load(self.path, weights_only=False)
+            try:
+                state = load_torch(self.path, "a fit checkpoint")
+            except DataError as exc:
+                log.warning("ignoring the fit checkpoint: %s", exc)
+                state = {}
             if state.get("fingerprint") == self.fingerprint:
                 self.saved = state
                 log.info("resuming the fit from %s after its stage %d", self.path, state["stage"])

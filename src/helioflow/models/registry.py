@@ -13,7 +13,7 @@ import torch
 
 from ..data.hdf5 import CalibrationDataset, read_dataset
 from ..errors import ConfigError, DataError
-from ..evaluate.atomic import save_torch_atomic
+from ..io import load_torch, save_torch_atomic
 from .base import SpotModel, TrainingData
 from .training import LoopConfig, train, write_curve
 
@@ -44,21 +44,23 @@ def network_classes(network: str) -> tuple[type, type]:
 def split_settings(network: str, settings: dict, seed: int, where: str | None = None) -> tuple[LoopConfig, object]:
     """A network's config section -> (loop settings, the network's config dataclass).
 
-    Unknown keys raise ConfigError naming the key and the allowed ones.
+    An unknown key, or a value of the wrong type or out of range, raises one ConfigError naming the
+    key (`where`.key, default networks.<network>.key), the value and what is allowed.
     """
-    config_cls, model_cls = network_classes(network)
+    where = where or f"networks.{network}"
+    config_cls, _ = network_classes(network)
     fields = {f.name for f in dataclasses.fields(config_cls)}
     for key in settings:
         if key not in fields and key not in LOOP_KEYS:
             allowed = ", ".join(sorted(fields | set(LOOP_KEYS)))
-            raise ConfigError(f"{where or 'networks.' + network}: unknown setting {key!r}; allowed: {allowed}")
+            raise ConfigError(f"{where}: unknown setting {key!r}; allowed: {allowed}")
     try:
         loop = LoopConfig(seed=seed, **{k: settings[k] for k in LOOP_KEYS if k in settings})
         config = config_cls(**{k: v for k, v in settings.items() if k in fields})
+    except ConfigError as exc:
+        raise ConfigError(f"{where}.{exc}") from None
     except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{where or 'networks.' + network}: {exc}") from None
-    if not model_cls.uses_loop:
-        loop = dataclasses.replace(loop, steps=0)
+        raise ConfigError(f"{where}: {exc}") from None
     return loop, config
 
 
@@ -114,13 +116,14 @@ def train_network(network: str, settings: dict, dataset_path: str | os.PathLike,
     fit_checkpoint = Path(str(model_path) + ".fit.ckpt")
     model.prepare(data, fit_checkpoint)
     checkpoint = Path(str(model_path) + ".ckpt")
-    curve = train(model, data, loop, checkpoint, progress=progress) or model.curve
+    steps = loop.steps if model.uses_loop else 0
+    curve = train(model, data, loop, checkpoint, progress=progress) if steps else model.curve
     save_model(model_path, model, network, config, data.scale, {"dataset": str(dataset_path), "train_images": len(data),
-                                                               "steps": loop.steps, "seed": seed})
+                                                               "steps": steps, "seed": seed})
     write_curve(curve, curve_csv, curve_png, f"{network} on {Path(dataset_path).stem}")
     checkpoint.unlink(missing_ok=True)
     fit_checkpoint.unlink(missing_ok=True)
-    log.info("wrote %s (%d training images, %d steps)", model_path, len(data), loop.steps)
+    log.info("wrote %s (%d training images, %d steps)", model_path, len(data), steps)
     return model
 
 
@@ -133,11 +136,8 @@ def save_model(path, model: SpotModel, network: str, config, scale: float, meta:
 
 def load_model(path: str | os.PathLike) -> tuple[SpotModel, dict]:
     """(model in eval mode, file info) from a model file; DataError names the file when it is not one."""
-    try:
-        info = torch.load(path, weights_only=False, map_location="cpu")
-    except (OSError, RuntimeError, EOFError, ValueError) as exc:
-        raise DataError(f"{path} is not a readable helioflow model file: {exc}") from None
-    if not isinstance(info, dict) or info.get("format") != MODEL_FORMAT:
+    info = load_torch(path, "a helioflow model file")
+    if info.get("format") != MODEL_FORMAT:
         raise DataError(f"{path}: not a helioflow model file (expected format {MODEL_FORMAT})")
     config_cls, model_cls = network_classes(info["network"])
     model = model_cls(config_cls(**info["config"]), tuple(info["image_shape"]))

@@ -3,8 +3,9 @@
 Seeded (each step's batch and randomness come from a generator seeded by (seed, step), so a run
 resumed from a checkpoint repeats exactly what the uninterrupted run would have done), a tqdm
 progress bar with the losses, a checkpoint every `checkpoint_every` steps that the next call
-resumes from (only a call with the same model, config, seed, batch size and data: the checkpoint holds
-their `fingerprint`; the number of steps may grow, to train on), one clear error on a NaN or exploding loss, and the training curve (CSV and PNG)
+resumes from (only a call with the same model, config, seed, batch size, steps and data: the
+checkpoint holds their `fingerprint`, so that a resumed run ends exactly where a clean run of the same
+settings ends), one clear error on a NaN or exploding loss, and the training curve (CSV and PNG)
 saved beside the model.
 """
 
@@ -21,9 +22,9 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
-from ..errors import HelioflowError
-from ..evaluate.atomic import save_torch_atomic
-from ..fingerprint import fingerprint
+from ..checks import check_ranges, check_types
+from ..errors import DataError, HelioflowError
+from ..io import fingerprint, load_torch, save_torch_atomic, write_text_atomic
 from .base import SpotModel, TrainingData
 
 log = logging.getLogger(__name__)
@@ -51,6 +52,10 @@ class LoopConfig:
     checkpoint_every: int = 200
     max_loss: float = 1e6
 
+    def __post_init__(self) -> None:
+        check_types(self)
+        check_ranges(self, at_least_one=("steps", "batch_size", "checkpoint_every"), positive=("max_loss",))
+
 
 def step_generator(seed: int, step: int) -> torch.Generator:
     """The generator of one step: the same (seed, step) always gives the same randomness."""
@@ -68,8 +73,8 @@ def train(
 
     The checkpoint (model and optimizer states, the step reached, the curve so far) is written
     atomically every loop.checkpoint_every steps and at the end; delete it to start afresh. A
-    checkpoint of another training (another model, config, seed, batch size or data) is ignored and
-    overwritten.
+    checkpoint of another training (another model, config, seed, batch size, number of steps or data)
+    is ignored and overwritten.
 
     Returns:
         The training curve: one dict per step with 'step' and the step's named losses.
@@ -77,9 +82,9 @@ def train(
     checkpoint_path = Path(checkpoint_path)
     optimizers = model.configure_optimizers()
     start, curve = 0, []
-    key = fingerprint(type(model).__name__, model.config, loop.seed, loop.batch_size, data)
-    if checkpoint_path.exists():
-        state = torch.load(checkpoint_path, weights_only=False)
+    key = fingerprint(type(model).__name__, model.config, loop.seed, loop.batch_size, loop.steps, data)
+    state = _checkpoint(checkpoint_path)
+    if state is not None:
         if state.get("fingerprint") == key:
             model.load_state_dict(state["model"])
             for name, opt in optimizers.items():
@@ -87,7 +92,7 @@ def train(
             start, curve = state["step"], state["curve"]
             log.info("resuming the training from %s after step %d", checkpoint_path, start)
         else:
-            log.info("ignoring %s: it holds another training (model, config, seed, batch size or data)",
+            log.info("ignoring %s: it holds another training (model, config, seed, batch size, steps or data)",
                      checkpoint_path)
     model.train()
     bar = tqdm(range(start, loop.steps), initial=start, total=loop.steps, disable=not progress,
@@ -111,6 +116,18 @@ def train(
     return curve
 
 
+def _checkpoint(path: Path) -> dict | None:
+    """The state in a checkpoint file; None when there is none, or (with a warning) when it cannot be
+    read: a checkpoint is only a shortcut, and the training starts afresh."""
+    if not path.exists():
+        return None
+    try:
+        return load_torch(path, "a training checkpoint")
+    except DataError as exc:
+        log.warning("ignoring the checkpoint: %s", exc)
+        return None
+
+
 def save_checkpoint(path: Path, key: str, model: SpotModel, optimizers: dict, step: int, curve: list[dict]) -> None:
     """Atomically write the resumable state of the training whose fingerprint is `key`."""
     save_torch_atomic(path, {"fingerprint": key, "model": model.state_dict(),
@@ -121,7 +138,6 @@ def save_checkpoint(path: Path, key: str, model: SpotModel, optimizers: dict, st
 def write_curve(curve: list[dict[str, float]], csv_path: str | os.PathLike, png_path: str | os.PathLike,
                 title: str) -> None:
     """The training curve as CSV (step, losses...) and as a log-scale plot."""
-    from ..evaluate.atomic import write_text_atomic
     from ..evaluate.figures import plt, save_figure
 
     keys = sorted({k for row in curve for k in row} - {"step"})

@@ -20,7 +20,7 @@ from torch import Tensor
 from ..errors import ConfigError
 from .heliostat import TRACKING_PARAMETERS, Heliostat
 from .raytrace import Optics
-from .sun import SUN_KINDS, SunShape
+from .sun import KIND_KEYS, SUN_KINDS, SunShape
 from .target import Camera
 
 FIT = "fit"
@@ -106,6 +106,8 @@ def check_effects(effects: dict, where: str, allow_fit: bool) -> None:
         if name not in REGISTRY:
             raise ConfigError(f"{where}: unknown effect {name!r}; allowed: {', '.join(REGISTRY)}")
         effect = REGISTRY[name]
+        if name == "sunshape":
+            _check_sun_kind(params or {}, f"{where}.{name}")
         for key, value in (params or {}).items():
             known = [p.name for p in effect.parameters]
             if key not in known:
@@ -126,6 +128,18 @@ def check_effects(effects: dict, where: str, allow_fit: bool) -> None:
                 raise ConfigError(f"{where}.{name}.{key} = {value!r}; expected a number")
             if (p.lower is not None and value < p.lower) or (p.upper is not None and value > p.upper):
                 raise ConfigError(f"{where}.{name}.{key} = {value!r}; expected {p.lower} <= value <= {p.upper}")
+
+
+def _check_sun_kind(params: dict, where: str) -> None:
+    """A sun shape's parameters are those of its kind (e.g. no csr for a gaussian sun)."""
+    kind = params.get("kind", REGISTRY["sunshape"].parameter("kind").default)
+    if kind not in SUN_KINDS:
+        return  # the parameter check names the unknown kind
+    other = [k for k in params if k != "kind" and k not in KIND_KEYS[kind]]
+    if other:
+        takes = ", ".join(KIND_KEYS[kind]) or "no parameter"
+        raise ConfigError(f"{where}.{other[0]} = {params[other[0]]!r}: a {kind} sun takes {takes}; remove "
+                          f"{other[0]} (in a --configfile variant: {other[0]}: null)")
 
 
 def fitted_parameters(effects: dict) -> list[tuple[str, str]]:

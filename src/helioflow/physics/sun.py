@@ -32,7 +32,7 @@ from helioflow.errors import ConfigError
 
 SUN_KINDS = ("point", "pillbox", "gaussian", "buie")
 _KINDS_TEXT = ", ".join(SUN_KINDS)
-_KIND_KEYS = {"point": (), "pillbox": ("half_angle_mrad",), "gaussian": ("sigma_mrad",), "buie": ("csr",)}
+KIND_KEYS = {"point": (), "pillbox": ("half_angle_mrad",), "gaussian": ("sigma_mrad",), "buie": ("csr",)}
 _CSR_MIN, _CSR_MAX = 0.005, 0.4
 BUIE_DISC_MRAD = 4.65
 BUIE_MAX_MRAD = 43.6
@@ -64,7 +64,7 @@ class SunShape:
     def __post_init__(self) -> None:
         if self.kind not in SUN_KINDS:
             raise ConfigError(f"sun shape: kind={self.kind!r} is unknown; expected one of {_KINDS_TEXT}")
-        for key in _KIND_KEYS[self.kind]:
+        for key in KIND_KEYS[self.kind]:
             if key == "csr":
                 in_range, allowed = (lambda v: _CSR_MIN <= v <= _CSR_MAX), f"{_CSR_MIN} <= csr <= {_CSR_MAX}"
             else:
@@ -79,7 +79,7 @@ class SunShape:
         kind = d["kind"]
         if kind not in SUN_KINDS:
             raise ConfigError(f"sun shape: kind={kind!r} is unknown; expected one of {_KINDS_TEXT}")
-        allowed = ("kind", *_KIND_KEYS[kind])
+        allowed = ("kind", *KIND_KEYS[kind])
         for key in d:
             if key not in allowed:
                 raise ConfigError(
