@@ -47,13 +47,14 @@ def check_types(settings) -> None:
             raise ConfigError(f"{f.name} = {value!r}: expected {expected}")
 
 
-def check_ranges(settings, *, at_least_one=(), non_negative=(), positive=(), fraction=(),
+def check_ranges(settings, *, at_least_one=(), counts=(), non_negative=(), positive=(), fraction=(),
                  below_one=()) -> None:
-    """Integers >= 1 (`at_least_one`), numbers >= 0 (`non_negative`), > 0 (`positive`), in (0, 1]
+    """Integers >= 1 (`at_least_one`) and >= 0 (`counts`), numbers >= 0 (`non_negative`), > 0 (`positive`), in (0, 1]
     (`fraction`) and in [0, 1) (`below_one`) among the fields of `settings`; ConfigError
     'field = value: expected ...' for the first one out of range."""
     rules = (
         (at_least_one, lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
+        (counts, lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
         (non_negative, lambda v: _is_number(v) and v >= 0, "a number >= 0"),
         (positive, lambda v: _is_number(v) and v > 0, "a number > 0"),
         (fraction, lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]"),

@@ -32,7 +32,10 @@ def write_atomic(path: str | os.PathLike, write: Callable[[Path], None]) -> None
         os.replace(tmp, path)
     except (OSError, RuntimeError) as exc:
         tmp.unlink(missing_ok=True)
-        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc).splitlines()[0]
+        if isinstance(exc, OSError) and exc.strerror:
+            reason = exc.strerror
+        else:  # torch.save reports a failed write (a full disk among others) as a RuntimeError
+            reason = f"the write failed (is the disk full?): {(str(exc).splitlines() or [type(exc).__name__])[0]}"
         raise OutputError(f"cannot write {path}: {reason}") from None
     except BaseException:
         tmp.unlink(missing_ok=True)

@@ -78,6 +78,42 @@ def trace_params(config: dict, dataset: str) -> dict:
     }
 
 
+def existing_upstream_files(config: dict) -> list[Path]:
+    """The heliostat files, datasets and model files of the experiment that exist already: what
+    `check_readable` looks at before snakemake decides what to rerun."""
+    r = Path(results_dir(config))
+    names = [r / "surfaces" / f"{h}.h5" for h in {**config["heliostats"], **dict.fromkeys(paint_heliostats(config))}]
+    names += [r / "datasets" / f"{d}.h5" for d in config["datasets"]]
+    names += [r / "models" / d / f"{m}.pt" for d in config["datasets"] for m in models(config)]
+    return [p for p in names if p.is_file()]
+
+
+def check_readable(paths: list[Path]) -> None:
+    """DataError naming the first file that is not a whole HDF5 file (.h5) or torch zip archive (.pt):
+    a corrupted upstream file is newer than what was made from it, so snakemake would rerun, and first
+    delete, everything downstream of it, which then fails on the corrupt file. Checked when snakemake
+    starts (common.smk), before any job: cheap checks (the HDF5 header and schema attribute, the zip
+    archive's checksums), not the full validation each rule makes of its inputs."""
+    import zipfile
+
+    import h5py
+
+    for path in paths:
+        try:
+            if path.suffix == ".h5":
+                with h5py.File(path, "r") as f:
+                    if "schema" not in f.attrs:
+                        raise OSError("no 'schema' attribute: not a helioflow file")
+            else:
+                with zipfile.ZipFile(path) as archive:
+                    bad = archive.testzip()
+                if bad is not None:
+                    raise OSError(f"member {bad} fails its checksum")
+        except (OSError, zipfile.BadZipFile, EOFError) as exc:
+            raise DataError(f"{path} is corrupt ({str(exc).splitlines()[0]}); everything made from it would be rerun "
+                            "and deleted first: delete the file to rebuild it, or restore it") from None
+
+
 def paint_datasets(config: dict) -> list[str]:
     """Names of the datasets imported from PAINT (source: paint)."""
     return [d for d, ds in config["datasets"].items() if ds.get("source") == "paint"]

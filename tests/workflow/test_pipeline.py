@@ -142,7 +142,7 @@ def test_a_bad_config_stops_snakemake_with_a_clear_message(tmp_path):
     workdir = _workdir(tmp_path / "run", config)
     proc = snakemake(workdir, "-j1", "all")
     assert proc.returncode != 0
-    assert "helioflow: config error: " in proc.stderr
+    assert "helioflow: config: " in proc.stderr
     assert "heliostats.small.mount = 'foo'" in proc.stderr and "az_el, juelich" in proc.stderr
     assert "Traceback" not in proc.stderr
     assert not (workdir / "results").exists()

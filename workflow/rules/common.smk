@@ -3,10 +3,12 @@ import json
 import sys
 
 from helioflow.config import validate_config
-from helioflow.errors import ConfigError
+from helioflow.errors import HelioflowError
 from helioflow.workflow import (
     NAME,
     all_targets,
+    check_readable,
+    existing_upstream_files,
     expand_config,
     dataset_heliostat,
     diagnose_params,
@@ -35,8 +37,10 @@ try:
     # the field's heliostats and calibration datasets, and the leave-one-out folds of PAINT
     # datasets, become config entries of their own
     config = expand_config(validate_config(config, workflow.source_path("../schemas/config.schema.yaml")))
-except ConfigError as exc:
-    sys.exit(f"helioflow: config error: {exc}")
+    # a corrupt upstream file is reported before snakemake reruns (and first deletes) what was made from it
+    check_readable(existing_upstream_files(config))
+except HelioflowError as exc:
+    sys.exit(f"helioflow: {exc}")
 
 RESULTS = results_dir(config)
 # torch CPU threads of every job that computes: fixed by config, not by `-j`, so that the same config

@@ -35,7 +35,7 @@ rule diagnose:
         f"{RESULTS}/benchmarks/diagnose/{{dataset}}.tsv"
     threads: TORCH_THREADS
     shell:
-        "helioflow --threads {params.torch_threads} diagnose --spec {params.spec:q} --dataset {input.dataset:q}"
+        "helioflow --threads {params.torch_threads:q} diagnose --spec {params.spec:q} --dataset {input.dataset:q}"
         " --heliostat {input.heliostat:q} --output {output.diagnosis:q} --ledger {params.ledger:q}"
         " --signatures {output.signatures:q} --ranking {output.ranking:q} --residuals {output.residuals:q}"
         " --ledger-figure {output.ledger:q} > {log:q} 2>&1"

@@ -21,6 +21,6 @@ rule compose_field:
         f"{RESULTS}/benchmarks/compose_field/compose_field.tsv"
     threads: TORCH_THREADS
     shell:
-        "helioflow --threads {params.torch_threads} compose-field --spec {params.spec:q} --models {input.models:q}"
+        "helioflow --threads {params.torch_threads:q} compose-field --spec {params.spec:q} --models {input.models:q}"
         " --datasets {input.datasets:q} --flux {output.flux:q} --figure {output.figure:q}"
         " --metrics {output.metrics:q} > {log:q} 2>&1"

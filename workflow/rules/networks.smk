@@ -15,7 +15,7 @@ rule train:
         f"{RESULTS}/benchmarks/train/{{dataset}}/{{model}}.tsv"
     threads: TORCH_THREADS
     shell:
-        "helioflow --threads {params.torch_threads} train --spec {params.spec:q} --dataset {input.dataset:q}"
+        "helioflow --threads {params.torch_threads:q} train --spec {params.spec:q} --dataset {input.dataset:q}"
         " --output {output.model:q} --curve {output.curve:q} --curve-figure {output.curve_figure:q} > {log:q} 2>&1"
 
 
@@ -46,7 +46,7 @@ rule evaluate:
         f"{RESULTS}/benchmarks/evaluate/{{dataset}}/{{model}}.tsv"
     threads: TORCH_THREADS
     shell:
-        "helioflow --threads {params.torch_threads} evaluate --spec {params.spec:q} --model {input.model:q}"
+        "helioflow --threads {params.torch_threads:q} evaluate --spec {params.spec:q} --model {input.model:q}"
         " --dataset {input.dataset:q} --metrics {output.metrics:q} --per-image {output.per_image:q}"
         " --grid {output.grid:q} --psnr {output.psnr:q} > {log:q} 2>&1"
 
@@ -67,7 +67,7 @@ rule recovery:
         f"{RESULTS}/benchmarks/recovery/{{dataset}}.tsv"
     threads: TORCH_THREADS
     shell:
-        "helioflow --threads {params.torch_threads} recovery --model {input.model:q} --heliostat {input.heliostat:q}"
+        "helioflow --threads {params.torch_threads:q} recovery --model {input.model:q} --heliostat {input.heliostat:q}"
         " --dataset {input.dataset:q} --output {output:q} > {log:q} 2>&1"
 
 

@@ -58,7 +58,7 @@ rule paint_centroids:
         f"{RESULTS}/benchmarks/paint_centroids/{{dataset}}.tsv"
     threads: TORCH_THREADS
     shell:
-        "helioflow --threads {params.torch_threads} paint-centroids --dataset {input.dataset:q}"
+        "helioflow --threads {params.torch_threads:q} paint-centroids --dataset {input.dataset:q}"
         " --heliostat {input.heliostat:q} --output {output.centroids:q} > {log:q} 2>&1"
 
 
@@ -84,5 +84,5 @@ rule leave_one_out:
         f"{RESULTS}/benchmarks/leave_one_out/{{dataset}}.tsv"
     threads: TORCH_THREADS
     shell:
-        "helioflow --threads {params.torch_threads} leave-one-out --inputs {params.inputs:q} --csv {output.csv:q}"
+        "helioflow --threads {params.torch_threads:q} leave-one-out --inputs {params.inputs:q} --csv {output.csv:q}"
         " --figure {output.figure:q} > {log:q} 2>&1"

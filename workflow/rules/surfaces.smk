@@ -13,4 +13,4 @@ rule surfaces:
         f"{RESULTS}/benchmarks/surfaces/{{heliostat}}.tsv"
     threads: TORCH_THREADS
     shell:
-        "helioflow --threads {params.torch_threads} surfaces --spec {params.spec:q} --output {output.geometry:q} > {log:q} 2>&1"
+        "helioflow --threads {params.torch_threads:q} surfaces --spec {params.spec:q} --output {output.geometry:q} > {log:q} 2>&1"

@@ -15,7 +15,7 @@ rule trace:
         f"{RESULTS}/benchmarks/trace/{{dataset}}.tsv"
     threads: TORCH_THREADS
     shell:
-        "helioflow --threads {params.torch_threads} trace --spec {params.spec:q} --heliostat {input.heliostat:q}"
+        "helioflow --threads {params.torch_threads:q} trace --spec {params.spec:q} --heliostat {input.heliostat:q}"
         " --output {output.dataset:q} > {log:q} 2>&1"
 
 

@@ -185,7 +185,7 @@ class NerfConfig:
     def __post_init__(self) -> None:
         check_types(self)
         check_ranges(self, at_least_one=("width", "depth", "samples", "rays", "chunk", "warmup_steps", "decay_steps"),
-                     non_negative=("frequencies", "view_frequencies"), positive=("slab", "scene_scale", "lr", "lr_final"))
+                     counts=("frequencies", "view_frequencies"), positive=("slab", "scene_scale", "lr", "lr_final"))
         if self.mount not in MOUNTS:
             raise ConfigError(f"mount = {self.mount!r}: expected one of {', '.join(MOUNTS)}")
         for key in ("heliostat_position_m", "aim_point_m", "target_normal"):

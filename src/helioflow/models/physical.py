@@ -91,8 +91,8 @@ class PhysicsConfig:
         check_effects(self.effects, "model.effects", allow_fit=True)
         check_types(self)
         check_ranges(self, at_least_one=("fit_steps", "fit_images", "cells_per_side", "rounds", "fit_rays"),
-                     non_negative=("facet_hops", "facet_sweeps", "block_trials", "pinned_hops", "gauss_newton_steps",
-                                   "coarse_blur_px"))
+                     counts=("facet_hops", "facet_sweeps", "block_trials", "pinned_hops", "gauss_newton_steps"),
+                     non_negative=("coarse_blur_px",))
 
 
 def drt_effects(effects: dict, n_facets: int) -> dict:
