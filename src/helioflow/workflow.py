@@ -353,15 +353,18 @@ def field_positions(field: dict, template: dict) -> list[list[float]]:
     else:
         spacing = spec["spacing_m"]
         if spacing == "auto":
-            f = template["facets"]
-            gap = f.get("gap_m", 0.0)
-            width = f["cols"] * f["width_m"] + (f["cols"] - 1) * gap
-            height = f["rows"] * f["height_m"] + (f["rows"] - 1) * gap
-            spacing = geometry.min_spacing(width, height, spec["clearance_m"])
+            spacing = geometry.min_spacing(*mirror_size(template), spec["clearance_m"])
         generate = geometry.fermat_spiral if spec["kind"] == "fermat" else geometry.radial_staggered
         positions = generate(spec["n"], spacing, spec["min_radius_m"], spec["sector_deg"],
                              spec["pivot_height_m"])
     return [[round(float(x), 3) for x in row] for row in positions]
+
+
+def mirror_size(heliostat: dict) -> tuple[float, float]:
+    """(width, height) in m of a heliostat section's mirror: its facets and the gaps between them."""
+    f = heliostat["facets"]
+    gap = f.get("gap_m", 0.0)
+    return f["cols"] * f["width_m"] + (f["cols"] - 1) * gap, f["rows"] * f["height_m"] + (f["rows"] - 1) * gap
 
 
 def field_names(n: int) -> list[str]:
@@ -454,9 +457,7 @@ def check_field_geometry(config: dict) -> None:
                               f"(target.center_m {target['center_m']}, normal {target['normal']}): it cannot see it")
     if field["layout"]["kind"] not in ("list", "csv"):
         return
-    f = config["heliostats"][field["heliostat"]]["facets"]
-    gap = f.get("gap_m", 0.0)
-    diagonal = min_spacing(f["cols"] * f["width_m"] + (f["cols"] - 1) * gap, f["rows"] * f["height_m"] + (f["rows"] - 1) * gap)
+    diagonal = min_spacing(*mirror_size(config["heliostats"][field["heliostat"]]))
     xy = np.asarray([h["position_m"][:2] for h in heliostats.values()])
     names = list(heliostats)
     for start in range(0, len(xy), 1024):  # pairwise distances, a block of rows at a time
