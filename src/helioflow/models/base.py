@@ -12,7 +12,6 @@ from abc import ABCMeta, abstractmethod
 from dataclasses import dataclass
 from typing import ClassVar
 
-import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -82,7 +81,3 @@ class SpotModel(nn.Module, metaclass=ABCMeta):
     def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor, generator: torch.Generator) -> Tensor:
         """(N,) sun positions (deg) -> (N, H, W) normalised images. An unconditioned model
         ignores the positions and returns N samples. Called under torch.no_grad()."""
-
-
-def to_numpy(x: Tensor) -> np.ndarray:
-    return x.detach().cpu().numpy()

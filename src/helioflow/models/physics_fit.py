@@ -90,7 +90,6 @@ from ..physics.target import Target, gaussian_blur
 
 log = logging.getLogger(__name__)
 
-LOSSES = ("absolute", "shape")
 SCALES = {("camera", "gain"), ("reflectivity", "value"), ("attenuation", "transmittance")}
 OFFSETS = {("camera", "background_w_m2")}
 TENSORS = {"tracking": "tracking", "canting": "facet_tilts_mrad", "surface": "control_heights_mm"}
