@@ -139,7 +139,7 @@ def test_a_variant_removes_default_entries_and_sections_with_null():
 
 
 def test_the_quick_variant_is_the_default_experiment_without_the_drt_surface_search(raw):
-    """workflow/variants/quick.yaml (the README's first look) changes only the experiment's name and
+    """workflow/variants/quick.yaml (the README's first look, docs/results.md) changes only the experiment's name and
     drt's search stages, so every other result of it is the default experiment's."""
     quick = copy.deepcopy(raw)
     update_config(quick, yaml.safe_load((REPO / "workflow" / "variants" / "quick.yaml").read_text()))

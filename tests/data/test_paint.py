@@ -279,7 +279,7 @@ def test_cli_imports_by_hand_and_reports_errors_in_one_line(tmp_path, capsys):
 
 
 def test_ideal_spot_lands_on_the_aim_point_and_is_oriented_like_the_measured_one(aa39):
-    """The centroid check's numbers (README): measured - ideal offsets are the real heliostat's
+    """The centroid check's numbers (docs/data.md): measured - ideal offsets are the real heliostat's
     pointing error; the matching spot orientation rules out flips and a wrong mount."""
     _, _, out = aa39
     rows = centroid_check(out / "aa39.h5", out / "AA39.h5")

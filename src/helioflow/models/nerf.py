@@ -5,7 +5,7 @@ Models to Enhance CSP Raytracing" (AIP Conf. Proc. 2815): the sun position plays
 viewing direction, the focal-spot image lies on a virtual sphere around the heliostat, a
 coordinate transform keeps the scene static, an MLP with positional encoding predicts density
 and intensity at points of the scene, and volume rendering along camera rays forms the image.
-This module works that idea out with the project's geometry (README, "Physics conventions").
+This module works that idea out with the project's geometry (docs/physics.md).
 
 Geometry
 --------
