@@ -16,6 +16,7 @@ import yaml
 
 from .errors import ConfigError
 from .physics.effects import check_effects
+from .workflow import facing
 
 SCHEMA_PATH = Path(__file__).resolve().parents[2] / "workflow" / "schemas" / "config.schema.yaml"
 
@@ -179,8 +180,6 @@ def _check_traced(ds: dict, where: str) -> None:
 
 def _check_sees_target(config: dict, heliostat: str, where: str) -> None:
     """The dataset's heliostat is in front of the calibration target (on the side its normal points to)."""
-    from .workflow import facing
-
     position, target = config["heliostats"][heliostat]["position_m"], config["target"]
     distance = facing(position, target["center_m"], target["normal"])
     if distance <= 0:

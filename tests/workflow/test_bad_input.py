@@ -174,6 +174,12 @@ def zero_image_in_a_dataset(tmp: Path) -> None:
     write_dataset(tmp / "datasets" / "d.h5", _dataset(images))
 
 
+def saturated_image_in_a_dataset(tmp: Path) -> None:
+    images = _spot()
+    images[0] = 950.0
+    write_dataset(tmp / "datasets" / "d.h5", _dataset(images))
+
+
 def nan_image_in_a_dataset(tmp: Path) -> None:
     images = _spot()
     images[2, 3, 3] = np.nan
@@ -254,6 +260,9 @@ FILE_CASES = [
     Case("an all-zero image in a dataset", zero_image_in_a_dataset,
          r"d\.h5: image 1 \(split train, sun azimuth 0\.00 deg, elevation 40\.00 deg\) is all zero: it shows no focal "
          r"spot \(1 such image\(s\), indices \[1\]\)"),
+    Case("an image with the same flux in every pixel (saturated) in a dataset", saturated_image_in_a_dataset,
+         r"d\.h5: image 0 \(split train, sun azimuth -30\.00 deg, elevation 20\.00 deg\) is 950 W/m\^2 in every pixel "
+         r"\(saturated\?\): it shows no focal spot \(1 such image\(s\), indices \[0\]\)"),
     Case("a NaN pixel in a dataset", nan_image_in_a_dataset,
          r"d\.h5: image 2 \(split train, sun azimuth 30\.00 deg, elevation 60\.00 deg\) holds NaN or infinite flux"),
     Case("an all-black PNG in a PAINT folder", black_png_in_a_paint_folder,

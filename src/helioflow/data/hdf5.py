@@ -204,14 +204,16 @@ def _check_images(images: np.ndarray, path, ds: CalibrationDataset) -> None:
         return (f"image {i} (split {ds.split[i]}, sun azimuth {float(ds.azimuth_deg[i]):.2f} deg, "
                 f"elevation {float(ds.elevation_deg[i]):.2f} deg)")
 
-    for bad, problem in ((~np.isfinite(flat).all(1), "holds NaN or infinite flux; expected finite W/m^2"),
-                         (np.isfinite(flat).all(1) & (flat.min(1, initial=0) < 0), "holds negative flux; expected >= 0")):
+    finite = np.isfinite(flat).all(1)
+    low, high = flat.min(1, initial=np.inf), flat.max(1, initial=-np.inf)
+    for bad, problem in ((~finite, "holds NaN or infinite flux; expected finite W/m^2"),
+                         (finite & (low < 0), "holds negative flux; expected >= 0")):
         if bad.any():
             raise DataError(f"{path}: {where(int(np.flatnonzero(bad)[0]))} {problem} ({int(bad.sum())} such image(s))")
-    uniform = flat.max(1, initial=0) <= flat.min(1, initial=0)
+    uniform = high <= low
     if uniform.any():
         i = int(np.flatnonzero(uniform)[0])
-        what = "is all zero" if flat[i].max(initial=0) == 0 else f"is {flat[i][0]:g} W/m^2 in every pixel (saturated?)"
+        what = "is all zero" if high[i] == 0 else f"is {high[i]:g} W/m^2 in every pixel (saturated?)"
         raise DataError(f"{path}: {where(i)} {what}: it shows no focal spot ({int(uniform.sum())} such image(s), "
                         f"indices {np.flatnonzero(uniform)[:10].tolist()}); remove it or repair the measurement")
 
