@@ -4,6 +4,7 @@ messages they really give (regenerate it with `python tests/workflow/test_bad_in
 
 import copy
 import re
+import shutil
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -14,12 +15,11 @@ import pytest
 import torch
 import yaml
 
-from helioflow.config import validate_config
+from helioflow.config import HeliostatSpec, validate_config
 from helioflow.data.hdf5 import CalibrationDataset, write_dataset
 from helioflow.data.paint import import_paint
-from helioflow.data.synthetic import trace_dataset
 from helioflow.data.surfaces import true_heliostat, write_heliostat
-from helioflow.config import HeliostatSpec
+from helioflow.data.synthetic import trace_dataset
 from helioflow.errors import HelioflowError
 from helioflow.evaluate.diagnose import update_ledger
 from helioflow.io import save_torch_atomic, write_text_atomic
@@ -188,8 +188,7 @@ def nan_image_in_a_dataset(tmp: Path) -> None:
 
 def _paint_copy(tmp: Path, level: int) -> Path:
     """A copy of the AA39 sample folder whose first flux image is `level` in every pixel."""
-    from PIL import Image
-    import shutil
+    from PIL import Image  # Pillow: a dependency of matplotlib
 
     folder = tmp / "paint"
     shutil.copytree(PAINT, folder)
