@@ -39,7 +39,7 @@ def _png(path: Path) -> str:
 
 def _dataset(path: Path) -> str:
     write_dataset(path, CalibrationDataset(
-        images=np.ones((4, 3, 3), np.float32), azimuth_deg=np.array([-20.0, 0.0, 10.0, 30.0]),
+        images=np.tile(np.array([[1, 1, 1], [1, 2, 1], [1, 1, 1]], np.float32), (4, 1, 1)), azimuth_deg=np.array([-20.0, 0.0, 10.0, 30.0]),
         elevation_deg=np.array([20.0, 30.0, 40.0, 60.0]),
         split=np.array(["train", "train", "interpolation", "extrapolation"]),
         attrs={"dataset": "scan", "heliostat": "small", "source": "synthetic (helioflow trace)"}))
