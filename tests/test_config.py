@@ -5,7 +5,6 @@ from pathlib import Path
 
 import pytest
 import yaml
-from snakemake.utils import update_config
 
 from helioflow.config import load_config, validate_config
 from helioflow.errors import ConfigError
@@ -136,18 +135,3 @@ def test_a_variant_removes_default_entries_and_sections_with_null():
     assert list(checked["datasets"]) == ["sanity_check"]
     assert "nerf" not in checked["networks"] and "gan" in checked["networks"]
     assert "field" not in checked
-
-
-def test_the_quick_variant_is_the_default_experiment_without_the_drt_surface_search(raw):
-    """workflow/variants/quick.yaml (the README's first look, docs/results.md) changes only the experiment's name and
-    drt's search stages, so every other result of it is the default experiment's."""
-    quick = copy.deepcopy(raw)
-    update_config(quick, yaml.safe_load((REPO / "workflow" / "variants" / "quick.yaml").read_text()))
-    quick, default = validate_config(quick), validate_config(raw)
-    quick_drt, default_drt = quick["networks"].pop("drt"), default["networks"].pop("drt")
-    assert (quick.pop("experiment"), default.pop("experiment")) == ("quick", "default")
-    assert quick == default
-    stages = ("facet_hops", "facet_sweeps", "block_trials", "pinned_hops")
-    assert all(quick_drt[k] == 0 < default_drt[k] for k in stages)
-    assert {k: v for k, v in quick_drt.items() if k not in stages} == \
-        {k: v for k, v in default_drt.items() if k not in stages}

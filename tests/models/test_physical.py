@@ -9,7 +9,7 @@ import torch
 from helioflow.errors import ConfigError
 from helioflow.models.physical import PhysicsConfig, drt_effects
 from helioflow.models.physics_fit import (FitSettings, Measurements, Scene, _Fitter, blur_levels,
-                                          facet_blocks, fit_effects)
+                                          fit_effects)
 from helioflow.physics.heliostat import TRACKING_PARAMETERS, ideal_heliostat, without_planes
 from helioflow.physics.target import Target
 
@@ -89,9 +89,10 @@ def test_lbfgs_recovers_tracking_errors():
 
 def test_gauss_newton_recovers_tracking_errors_from_a_single_azimuth_scan():
     """Sun at one azimuth, elevation 5-85 deg: the elevation offset and the northward pedestal
-    tilt move the spot almost alike (the sanity_check design). L-BFGS alone stops in that valley,
-    0.7 mrad from the truth; the Gauss-Newton steps after it recover all five parameters and cut the
-    loss by more than 1000x (a step is taken only when the loss falls; the last may find none to take)."""
+    tilt move the spot almost alike (the sanity_check design), a long flat valley. On the exact
+    trace L-BFGS stopped in it 0.7 mrad from the truth; on the linearised trace it reaches the
+    truth, and the Gauss-Newton steps after it (a step is taken only when the loss falls) stay
+    there and do not raise the loss."""
     s = scene()
     truth = torch.tensor([-0.5, -1.6, 0.2, 0.1, -1.2])
     el = torch.linspace(5.0, 85.0, 16)
@@ -101,14 +102,13 @@ def test_gauss_newton_recovers_tracking_errors_from_a_single_azimuth_scan():
     data = Measurements(images / images.max(), az, el, float(images.max()))
     effects = {"sunshape": BUIE, "tracking": {f"{n}_mrad": "fit" for n in TRACKING_PARAMETERS}}
     descent = fit_effects(s, effects, data, FitSettings(steps=60))
-    assert (descent.tensors["tracking"] - truth).abs().max() > 0.5
+    assert torch.allclose(descent.tensors["tracking"], truth, atol=0.02), descent.tensors["tracking"]
     result = fit_effects(s, effects, data, FitSettings(steps=60, gauss_newton_steps=4))
     assert torch.allclose(result.tensors["tracking"], truth, atol=0.02), result.tensors["tracking"]
-    assert result.history[-1] < 1e-3 * descent.history[-1], (descent.history[-1], result.history[-1])
+    assert result.history[-1] <= descent.history[-1]
 
 
-@pytest.mark.parametrize("key", ["gauss_newton_steps", "facet_hops", "facet_sweeps", "block_trials",
-                                 "pinned_hops"])
+@pytest.mark.parametrize("key", ["gauss_newton_steps", "facet_hops", "pinned_hops", "seed"])
 def test_a_negative_step_or_hop_count_is_a_config_error(key):
     with pytest.raises(ConfigError, match=rf"{key} = -1: expected an integer >= 0"):
         PhysicsConfig(effects={"sunshape": BUIE}, **{key: -1})
@@ -165,14 +165,6 @@ def test_a_point_sun_without_slope_error_is_traced_with_rays():
     az, el = suns(3)
     images = s.simulate({"sunshape": {"kind": "point"}}, {}, az, el)
     assert images.shape == (3, 32, 32) and torch.isfinite(images).all() and images.sum() > 0
-
-
-def test_only_a_kernel_trace_of_a_sun_with_spread_is_noise_free():
-    """The fit's noise-free finish needs kernels; a point sun without slope error is traced with rays."""
-    point = {"sunshape": {"kind": "point"}}
-    assert scene().noise_free({**point, "slope_error": {"sigma_mrad": 0.3}})
-    assert not scene().noise_free(point)
-    assert not replace(scene(), splat="bilinear").noise_free({"sunshape": BUIE})
 
 
 def test_coarse_to_fine_blur_levels_halve_down_to_one_pixel_then_sharp():
@@ -232,63 +224,6 @@ def test_pinned_hops_bring_a_fit_whose_facets_cover_for_each_other_back_to_the_t
     assert losses[-1] < 1e-3 * before
 
 
-def test_facet_blocks_are_the_2x2_windows_of_the_facet_grid():
-    h = ideal_heliostat(rows=4, cols=6, width=0.8, height=0.6, gap=0.02)
-    blocks = facet_blocks(h.facet_translation)
-    assert len(blocks) == 3 * 5 and len({tuple(sorted(b.tolist())) for b in blocks}) == 15
-    for b in blocks:
-        span = h.facet_translation[b].amax(0) - h.facet_translation[b].amin(0)
-        assert span[:2].tolist() == pytest.approx([0.82, 0.62])
-    assert set(torch.cat(blocks).tolist()) == set(range(24))
-    square = ideal_heliostat(rows=2, cols=2).facet_translation
-    assert [b.tolist() for b in facet_blocks(square)] == [[0, 1, 2, 3]]
-    off_grid = h.facet_translation + torch.randn(24, 3, generator=torch.Generator().manual_seed(0)) * 0.05
-    blocks = facet_blocks(off_grid)  # not a grid: every facet with its 3 nearest neighbours
-    assert len(blocks) == 24 and all(b[0] == f and len(b) == 4 for f, b in enumerate(blocks))
-
-
-@pytest.mark.slow
-def test_a_block_trial_refits_neighbours_that_cover_for_each_other():
-    """2 x 3 facets with true surfaces except facets 0 and 1, which start negated, within the block of
-    facets 0, 1, 3, 4 (only that block free): a descent leaves them wrong; the block trial (from random
-    states through wide blur) brings them back."""
-    s, truth, data, effects, start = negated_facets(2, 3, 2)
-    fit = _Fitter(s, data, data.images, FitSettings(steps=50, block_trials=1), [])
-    masks = {"surface": torch.zeros_like(truth, dtype=torch.bool)}
-    masks["surface"][[0, 1, 3, 4]] = True
-    descended, _ = fit.descend(effects, {"surface": start}, masks, False, "descent")
-    generator = torch.Generator().manual_seed(0)
-    tried, losses = fit.block_trials(effects, {"surface": start}, masks, generator, False, "")
-
-    def error(t: dict) -> float:
-        return float((t["surface"][:2] - truth[:2]).norm() / truth[:2].norm())
-
-    assert error(descended) > 0.5
-    assert error(tried) < 0.05
-    assert losses == [fit.loss(effects, tried)]
-
-
-@pytest.mark.parametrize("kept", [True, False])
-def test_the_facet_sweeps_run_once_more_only_after_a_kept_block(monkeypatch, kept):
-    """A kept block changes the state its neighbours complement, so the sweeps run again; block trials
-    that keep nothing are the fit's last search."""
-    calls = []
-
-    def sweep(self, effects, tensors, masks, generator, progress, label):
-        calls.append("sweep")
-        return tensors, [self.loss(effects, tensors)]
-
-    def block_trials(self, effects, tensors, masks, generator, progress, label):
-        calls.append("block trials")
-        return tensors, [self.loss(effects, tensors) * (0.5 if kept else 1.0)]
-
-    monkeypatch.setattr(_Fitter, "sweep", sweep)
-    monkeypatch.setattr(_Fitter, "block_trials", block_trials)
-    s, _, data, effects, _ = negated_facets(2, 2, 0)
-    fit_effects(s, effects, data, FitSettings(steps=2, facet_sweeps=1, block_trials=1))
-    assert calls == ["sweep", "block trials"] + (["sweep"] if kept else [])
-
-
 def test_the_traces_of_a_heliostats_facets_add_up_to_its_trace():
     s = scene(2, 2, dtype=torch.float64)
     az, el = (a.double() for a in suns(6))
@@ -302,55 +237,25 @@ def test_the_traces_of_a_heliostats_facets_add_up_to_its_trace():
     torch.testing.assert_close(parts, whole, rtol=1e-9, atol=1e-9 * float(whole.max()))
 
 
-@pytest.mark.slow
-def test_a_facet_sweep_finds_the_basin_a_descent_from_the_current_state_misses():
-    """2 x 2 facets with true surfaces except facet 0, whose heights start negated (the others
-    held): L-BFGS from there goes further astray, while the sweep's restarts (from flat and from
-    random states) bring facet 0 back to the truth."""
-    s, truth, data, effects, start = negated_facets(2, 2, 1)
-    fit = _Fitter(s, data, data.images, FitSettings(steps=50), [])
-    masks = {"surface": torch.zeros_like(truth, dtype=torch.bool)}
-    masks["surface"][0] = True
-    descended, _ = fit.descend(effects, {"surface": start}, masks, False, "descent")
-    swept, losses = fit.sweep(effects, {"surface": start}, masks, torch.Generator().manual_seed(0), False, "")
-
-    def error(t: dict) -> float:
-        return float((t["surface"][0] - truth[0]).norm() / truth[0].norm())
-
-    assert error(descended) > 1.0
-    assert error(swept) < 0.01
-    assert losses == [fit.loss(effects, swept)]  # one facet refitted, its loss kept
-
-
 def resumable_fit() -> tuple[Scene, dict, Measurements, FitSettings]:
-    """A 2 x 2 facet fit of surface, canting and slope error through rigid descent, rounds, a hop, a
-    sweep, a block trial and a pinned hop: every kind of stage and the random generator."""
+    """A 2 x 2 facet fit of surface, canting and slope error through rigid descent, rounds, a hop and
+    a pinned hop: every kind of stage."""
     s, truth, _, _, _ = negated_facets(2, 2, 0)
     world = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 0.5}, "surface": {}, "canting": {}}
     data = measured(s, world, {"surface": truth * 0.5, "canting": torch.tensor([[0.3, 0.0], [-0.3, 0.2],
                                                                                [0.0, -0.2], [0.0, 0.0]])})
     effects = {"sunshape": BUIE, "slope_error": {"sigma_mrad": "fit"}, "surface": {"control_heights_mm": "fit"},
                "canting": {"facet_tilts_mrad": "fit"}}
-    settings = FitSettings(steps=3, rounds=2, search_iterations=3, facet_hops=1, facet_sweeps=1, block_trials=1,
-                           pinned_hops=1)
+    settings = FitSettings(steps=3, rounds=2, search_iterations=3, facet_hops=1, pinned_hops=1)
     return s, effects, data, settings
 
 
-@pytest.mark.parametrize("stop", ["block_trials", "pinned_hops"])
-def test_a_fit_stopped_midway_resumes_from_its_checkpoint_and_ends_where_it_would_have(monkeypatch, tmp_path, stop):
-    """Stopped in its block trials (the sweep before drew from the random generator) or in its pinned
-    hops (after a kept block trial and the sweep it calls for), the fit resumes after its last finished
-    stage."""
+def test_a_fit_stopped_midway_resumes_from_its_checkpoint_and_ends_where_it_would_have(monkeypatch, tmp_path):
+    """Stopped in its pinned hops (after the rounds and the facet hop), the fit resumes after its last
+    finished stage."""
     import helioflow.models.physics_fit as physics_fit
-    for constant in ("SWEEP_STEPS", "TRIAL_STEPS", "PIN_STEPS"):
-        monkeypatch.setattr(physics_fit, constant, 2)
-    block_trials = _Fitter.block_trials
-
-    def kept(self, *args):  # the trials as they are, reported as kept: the sweep runs once more
-        tensors, losses = block_trials(self, *args)
-        return tensors, [loss * 0.5 for loss in losses]
-
-    monkeypatch.setattr(_Fitter, "block_trials", kept)
+    monkeypatch.setattr(physics_fit, "PIN_STEPS", 2)
+    stop = "pinned_hops"
     s, effects, data, settings = resumable_fit()
     whole = fit_effects(s, effects, data, settings)
     hops, original, hop = [], getattr(_Fitter, stop), _Fitter.hop
@@ -377,7 +282,7 @@ def test_a_fit_stopped_midway_resumes_from_its_checkpoint_and_ends_where_it_woul
 
 def test_a_checkpoint_of_another_fit_is_ignored(tmp_path):
     s, effects, data, settings = resumable_fit()
-    settings = replace(settings, facet_hops=0, facet_sweeps=0, block_trials=0, pinned_hops=0)
+    settings = replace(settings, facet_hops=0, pinned_hops=0)
     path = tmp_path / "fit.ckpt"
     fit_effects(s, effects, data, settings, checkpoint=path)
     other = Measurements(data.images.flip(-1), data.azimuth_deg, data.elevation_deg, data.scale)
@@ -385,12 +290,3 @@ def test_a_checkpoint_of_another_fit_is_ignored(tmp_path):
     fresh = fit_effects(s, effects, other, settings)
     assert resumed.history == fresh.history
     assert all(torch.equal(resumed.tensors[k], fresh.tensors[k]) for k in fresh.tensors)
-
-
-def test_block_trials_on_a_heliostat_of_at_most_four_facets_refit_all_of_them():
-    """One block holds every facet: nothing is held beside it (an empty rest once crashed the trace)."""
-    s, truth, data, effects, start = negated_facets(1, 2, 1)
-    fit = _Fitter(s, data, data.images, FitSettings(steps=3, block_trials=1), [])
-    masks = {"surface": torch.ones_like(truth, dtype=torch.bool)}
-    tried, losses = fit.block_trials(effects, {"surface": start}, masks, torch.Generator().manual_seed(0), False, "")
-    assert len(losses) == 1 and losses[0] <= fit.loss(effects, {"surface": start})

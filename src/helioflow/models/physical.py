@@ -48,10 +48,11 @@ class PhysicsConfig:
         fit_images: train images the fit uses (evenly spread over the train split; all if fewer).
         cells_per_side: surface cells per facet side of the trace (fit and prediction).
         dataset_trace: the dataset's own trace settings ({"splat", "rays", ...}), from its
-            attributes; a dataset traced with bilinear rays is fitted with `fit_rays` rays per
-            image (faster than kernel splatting for many facets), the fit ending on the noise-free
-            kernel trace it is predicted with (physics_fit module docstring).
-        fit_rays: rays per image of a bilinear fit.
+            attributes; the model predicts with kernels on at least the dataset's cells per side,
+            and heliostat tensors are fitted on that trace, linearised (physics_fit module
+            docstring); a model without tensors fits a dataset traced with bilinear rays with
+            `fit_rays` rays per image.
+        fit_rays: rays per image of a bilinear fit without heliostat tensors.
         coarse_blur_px: the first descents compare images blurred by a Gaussian of this std
             (pixels), then half of it, ..., then the sharp ones (physics_fit.blur_levels);
             0 = sharp only.
@@ -59,10 +60,8 @@ class PhysicsConfig:
             attributes): fit by shape, predict peak-normalised images (module docstring).
         facet_hops: basin hops after the rounds of a surface fit on several facets
             (physics_fit module docstring); 0 = none.
-        facet_sweeps: facet sweeps that end a surface fit on several facets (physics_fit module
-            docstring); 0 = none.
-        block_trials: block trials after the sweeps (physics_fit module docstring); 0 = none.
-        pinned_hops: pinned hops after the block trials (physics_fit module docstring); 0 = none.
+        pinned_hops: pinned hops after the facet hops (physics_fit module docstring); 0 = none.
+        seed: seeds the facet hops' random blocks.
         gauss_newton_steps: Gauss-Newton steps that end a fit with at most 64 free tensor
             entries (physics_fit module docstring); 0 = none.
     """
@@ -82,16 +81,15 @@ class PhysicsConfig:
     coarse_blur_px: float = 0.0
     per_image_normalised: bool = False
     facet_hops: int = 0
-    facet_sweeps: int = 0
-    block_trials: int = 0
     pinned_hops: int = 0
+    seed: int = 0
     gauss_newton_steps: int = 4
 
     def __post_init__(self):
         check_effects(self.effects, "model.effects", allow_fit=True)
         check_types(self)
         check_ranges(self, at_least_one=("fit_steps", "fit_images", "cells_per_side", "rounds", "fit_rays"),
-                     counts=("facet_hops", "facet_sweeps", "block_trials", "pinned_hops", "gauss_newton_steps"),
+                     counts=("facet_hops", "pinned_hops", "gauss_newton_steps", "seed"),
                      non_negative=("coarse_blur_px",))
 
 
@@ -146,8 +144,7 @@ class RaytraceModel(SpotModel):
         c = self.config
         settings = FitSettings(steps=c.fit_steps, rounds=c.rounds, coarse_blur_px=c.coarse_blur_px,
                                loss="shape" if c.per_image_normalised else "absolute",
-                               facet_hops=c.facet_hops, facet_sweeps=c.facet_sweeps,
-                               block_trials=c.block_trials, pinned_hops=c.pinned_hops,
+                               facet_hops=c.facet_hops, pinned_hops=c.pinned_hops, seed=c.seed,
                                gauss_newton_steps=c.gauss_newton_steps)
         self.fitted = fit_effects(self.scene(fitting=True), self.effects_to_fit(self.heliostat), measured,
                                   settings, progress=True, label=f"fit {self.name}", finish=self.scene(),

@@ -4,70 +4,53 @@ The model is the tracer itself: `Scene.simulate` traces the design heliostat wit
 and the heliostat tensors being fitted. Parameters are fitted in three ways, by what they are:
 
 - heliostat tensors (tracking errors (5,) mrad, canting tilts (F, 2) mrad, surface control-point
-  heights (F, C, C) mm): L-BFGS through the differentiable tracer. Canting tilts enter without their
-  mean and heights without each facet's plane, so that no effect can mimic another (a common
-  tilt is tracking, a facet's tilt is canting);
+  heights (F, C, C) mm): L-BFGS through the differentiable tracer, linearised in them
+  (`LinearisedScene`, physics.linearised): where each surface cell's ray meets the target is
+  linear in the tensors at the sizes calibration measures, so the hits and their derivatives are
+  traced once and every descent step only moves them, deposits them and convolves with the
+  footprint (the kernel trace's noise-free image, tens of times faster than a trace). Canting
+  tilts enter without their mean and heights without each facet's plane, so that no effect can
+  mimic another (a common tilt is tracking, a facet's tilt is canting);
 - spread scalars (sun shape, slope error, camera blur): golden-section search on a log scale
   within the registry bounds (the kernel tracer is not differentiable in them);
 - linear scalars (camera gain, reflectivity, constant transmittance; camera background): closed
   form, a least-squares line measured = a * predicted + b after every trace.
 
 With both tensors and spread scalars, the two are fitted in turn (`rounds`), tensors first:
-a spread searched before the tensors are fitted widens to cover their misfit. A surface fitted
-with other parameters starts after them (coarse to fine): the rigid tensors (tracking, canting)
-are fitted and the spreads searched with the surface held flat, since a flexible surface fitted
-from the start mimics part of a tracking error or a blur and the alternation then crawls out of
-that valley (a kernel fit of the semi_sphere heliostat stalled with the slope error at 0.82 mrad
-for a true 0.3, the sanity_check fit at 0.44 for 0.50).
+a spread searched before the tensors are fitted widens to cover their misfit. The spreads start
+at their registry default then (a nearly sharp kernel trace is a lattice of cell hits, rough for a
+descent), without tensors (almost) absent. A surface fitted with other parameters starts after
+them (coarse to fine): the rigid tensors (tracking, canting) are fitted and the spreads searched
+with the surface held flat, since a flexible surface fitted from the start mimics part of a
+tracking error or a blur and the alternation then crawls out of that valley. The first round
+compares images blurred by `coarse_blur_px`, then half of it, ..., then sharp ones, so that hits
+displaced by more than a pixel still feel where they belong.
 
 A surface fitted on several facets then takes `facet_hops` basin hops: the surface and canting of
 a random block of neighbouring facets (a facet and its 0, 1 or 3 nearest neighbours) are reset to
 flat and untilted, everything is descended again (images blurred by 2 px, then sharp), and the
 result is kept when the loss falls. Neighbouring facets' images overlap, and a fit from flat
 facets ends where the neighbours' flux covers for a wrong facet; no descent leaves that minimum,
-but forgetting a block and fitting it again does (semi_sphere: docs/surface_search.md).
-
-A fit traced with bilinear rays (common random numbers: the same rays at every trace) has fitted
-the rays' noise along with the spots, so it ends on the noise-free kernel trace it predicts with
-(`finish`): one more descent there. Then, for a surface on several facets, `facet_sweeps` facet
-sweeps: each facet in turn, the one whose flux meets the most squared residual first, is refitted
-alone (its trace added to the held trace of the others; with gradient 0.02 s against 0.26 s for
-the heliostat's on semi_sphere) from its current state, from flat and from random states; the
-start that ends lowest is kept when the heliostat's loss falls, and a descent of everything
-follows each sweep.
-A facet refitted alone among true neighbours comes back from flat to within a few percent of its
-heights; among fitted ones it finds the state that best complements them, which the descent of
-everything then carries further (semi_sphere: docs/surface_search.md).
-
-Then `block_trials` block trials: the 2 x 2 block of neighbouring facets whose flux meets the most
-squared residual (not tried before) is refitted alone from random states through wide blur
-(TRIAL_BLURS_PX), the lowest end point kept when the heliostat's loss falls, and everything is
-descended again. Neighbours cover for each other's wrong state, so a facet refitted alone returns
-to the state that complements them; a block refitted together can leave that state, and once one
-block is right the descent of everything carries its neighbours towards the truth. When a block was
-kept, the facet sweeps run once more: the facets now complement other neighbours (semi_sphere:
-docs/surface_search.md).
+but forgetting a block and fitting it again does.
 
 Then `pinned_hops` pinned hops: the facet whose flux meets the most squared residual (not tried
 before) is reset to flat and the mean tilt and pinned there while everything else descends, then
 everything descends (PIN_STEPS traces each); the result is kept when the loss falls. Neighbours
 cover for a wrong facet, so the facet's true state looks worse than its wrong one while they are
-held (the sweep and the block trials judge that way) and a hop that frees everything at once lets
-the facet slide back into the state they cover for; pinned flat, the facet makes its neighbours
-give up the cover first (semi_sphere: docs/surface_search.md).
+held, and a hop that frees everything at once lets the facet slide back into the state they cover
+for; pinned flat, the facet makes its neighbours give up the cover first.
 
 A fit with few free tensor entries (at most `gauss_newton_max_parameters`) ends with
 Gauss-Newton steps on them (`gauss_newton_steps`), then one more spread search. L-BFGS stops in
 long flat valleys: a single-azimuth scan turns the mirror about nearly one axis, so the elevation
-offset and the northward pedestal tilt move the spot almost alike (their estimates correlate at
-1.000). On sanity_check the line search gave up with both 0.64 mrad from the truth, though the
-loss still fell along the straight line towards it (also in float64). Solving the normal
-equations steps along the valley at once: 0.64 -> 0.009 mrad in three steps.
+offset and the northward pedestal tilt move the spot almost alike. Solving the normal equations
+steps along the valley at once.
 
 Two losses: "absolute" compares images divided by one scale (the dataset's maximum, as the
 metrics do); "shape" compares images each divided by its own sum, so a pure scale (reflectivity,
 attenuation, gain) changes nothing - what the diagnosis uses.
 """
+
 
 from __future__ import annotations
 
@@ -85,6 +68,7 @@ from ..errors import DataError
 from ..io import fingerprint, load_torch, save_torch_atomic
 from ..physics.effects import FIT, REGISTRY, fitted_parameters, resolve
 from ..physics.heliostat import Heliostat, without_planes
+from ..physics.linearised import LinearisedTrace, linearise
 from ..physics.raytrace import trace
 from ..physics.target import Target, gaussian_blur
 
@@ -96,15 +80,11 @@ TENSORS = {"tracking": "tracking", "canting": "facet_tilts_mrad", "surface": "co
 FD_STEPS = {"tracking": 0.01, "canting": 0.01, "surface": 0.002}  # central-difference steps (mrad, mrad, mm)
 HOP_BLURS_PX = (2.0, 0.0)  # blur levels of the descents after a basin hop
 HOP_BLOCK_SIZES = (1, 2, 4)  # facets a basin hop resets: a facet and its nearest neighbours
-SWEEP_STARTS = 6  # random starts per facet in a facet sweep, besides its current state and flat
-SWEEP_STEPS = 50  # traces of one facet per descent of a facet sweep
-TRIAL_BLURS_PX = (8.0, 4.0, 2.0, 1.0, 0.0)  # blur levels of a block trial's descents from a random state
-TRIAL_STARTS = 8  # random states per block trial
-TRIAL_STEPS = 60  # traces of the block per descent of a block trial
 PIN_STEPS = 100  # traces of each of a pinned hop's two descents (the rest, then everything)
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 SEARCH_FLOOR = 0.02  # lowest value a spread scalar is searched from (its unit)
 SEARCH_CEILING = 20.0  # highest value a spread scalar is searched to
+LINEARISED = "heliostat tensors fitted on the linearised trace"  # in checkpoint fingerprints: older fits' states differ
 
 
 @dataclass(frozen=True)
@@ -142,12 +122,9 @@ class Scene:
         with K / F of the rays; their images add up to the heliostat's."""
         physics = self._physics(effects)
         h = physics.heliostat
-        if "tracking" in tensors:
-            h = replace(h, tracking_error=tensors["tracking"] * 1e-3)
-        if "canting" in tensors:
-            h = replace(h, canting_error=zero_mean(tensors["canting"]) * 1e-3)
-        if "surface" in tensors:
-            h = replace(h, control_heights=without_planes(tensors["surface"]) * 1e-3)
+        effective = effective_tensors(tensors)
+        fields = {"tracking": "tracking_error", "canting": "canting_error", "surface": "control_heights"}
+        h = replace(h, **{fields[k]: v * 1e-3 for k, v in effective.items()})
         rays = self.rays
         if facets is not None:
             h, rays = h.facets(facets), max(1, self.rays * len(facets) // h.n_facets)
@@ -155,16 +132,7 @@ class Scene:
         traced = trace(h, self.target, azimuth, elevation, physics.optics, rays=rays,
                        splat=self._splat(physics.optics), cells_per_side=self.cells_per_side, seed=seed,
                        with_launched=with_lost)
-        flux, launched = traced if with_lost else (traced, None)
-        images = physics.camera.apply(flux) if physics.camera is not None else flux
-        if not with_lost:
-            return images
-        gain = physics.camera.gain if physics.camera is not None else 1.0
-        return images, (launched / self.target.pixel_area - flux.sum((-2, -1))).clamp_min(0.0) * gain
-
-    def noise_free(self, effects: dict) -> bool:
-        """Whether `simulate` traces `effects` with kernels: the expected images, no ray noise."""
-        return self._splat(self._physics(effects).optics) == "kernel"
+        return photographed(physics, self.target, traced, with_lost)
 
     def _physics(self, effects: dict):
         """The effects (their "fit" entries dropped) resolved on the design heliostat."""
@@ -175,6 +143,61 @@ class Scene:
         """A point sun without slope error has no beam-spread kernel: it is traced with rays."""
         sharp = optics.sun.kind == "point" and optics.slope_error == 0.0
         return "bilinear" if sharp else self.splat
+
+
+@dataclass(frozen=True)
+class LinearisedScene:
+    """A scene's trace at fixed sun positions, linearised in the heliostat tensors
+    (physics.linearised): what a fit of heliostat tensors descends on. Same `simulate` as the
+    scene's, at those sun positions only; noise-free (the kernel trace's expected image)."""
+
+    scene: Scene
+    trace: LinearisedTrace
+    azimuth_deg: Tensor
+    elevation_deg: Tensor
+
+    @classmethod
+    def of(cls, scene: Scene, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor,
+           elevation_deg: Tensor) -> LinearisedScene:
+        """`scene` linearised at `tensors` (raw fit tensors; see Scene.simulate) for the (N,) sun
+        positions (deg)."""
+        h = scene._physics(effects).heliostat
+        trace_ = linearise(h, scene.target, torch.deg2rad(azimuth_deg), torch.deg2rad(elevation_deg),
+                           scene.cells_per_side, effective_tensors(tensors))
+        return cls(scene, trace_, azimuth_deg, elevation_deg)
+
+    @property
+    def heliostat(self) -> Heliostat:
+        return self.scene.heliostat
+
+    def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,
+                 seed: int = 0, with_lost: bool = False,
+                 facets: Tensor | None = None) -> Tensor | tuple[Tensor, Tensor]:
+        """As Scene.simulate, at the sun positions the scene was linearised for (`seed` is unused)."""
+        if not (torch.equal(azimuth_deg, self.azimuth_deg) and torch.equal(elevation_deg, self.elevation_deg)):
+            raise ValueError("a linearised scene traces only the sun positions it was linearised for")
+        physics = self.scene._physics(effects)
+        traced = self.trace.images(effective_tensors(tensors), physics.optics, facets, with_launched=with_lost)
+        return photographed(physics, self.scene.target, traced, with_lost)
+
+
+def photographed(physics, target: Target, traced: Tensor | tuple[Tensor, Tensor],
+                 with_lost: bool) -> Tensor | tuple[Tensor, Tensor]:
+    """A trace's flux (N, H, W) W/m^2 (and, with_lost, the (N,) power launched towards the target
+    plane, W) as the camera sees it: images, and with_lost the flux that missed them (see
+    Scene.simulate)."""
+    flux, launched = traced if with_lost else (traced, None)
+    images = physics.camera.apply(flux) if physics.camera is not None else flux
+    if not with_lost:
+        return images
+    gain = physics.camera.gain if physics.camera is not None else 1.0
+    return images, (launched / target.pixel_area - flux.sum((-2, -1))).clamp_min(0.0) * gain
+
+
+def effective_tensors(tensors: dict[str, Tensor]) -> dict[str, Tensor]:
+    """Fit tensors as the heliostat takes them: canting without its mean, heights without planes."""
+    effective = {"tracking": lambda t: t, "canting": zero_mean, "surface": without_planes}
+    return {k: effective[k](v) for k, v in tensors.items()}
 
 
 def zero_mean(tilts: Tensor) -> Tensor:
@@ -295,14 +318,9 @@ class FitSettings:
             where they belong.
         facet_hops: basin hops after the rounds for a surface fitted on several facets (module
             docstring); 0 = none. Each costs the traces of len(HOP_BLURS_PX) descents.
-        facet_sweeps: facet sweeps after the hops, each followed by a descent of everything (module
-            docstring); 0 = none. Each costs (SWEEP_STARTS + 2) * len(HOP_BLURS_PX) * SWEEP_STEPS
-            traces of one facet for every facet, plus that descent.
-        block_trials: block trials after the sweeps (module docstring); 0 = none. Each costs
-            TRIAL_STARTS * len(TRIAL_BLURS_PX) * TRIAL_STEPS traces of its 4 facets, plus a descent of
-            everything when its block is kept; the facet sweeps run once more when any block was.
-        pinned_hops: pinned hops after the block trials (module docstring); 0 = none. Each costs
+        pinned_hops: pinned hops after the facet hops (module docstring); 0 = none. Each costs
             2 * PIN_STEPS traces of the heliostat.
+        seed: seeds the facet hops' random blocks.
         gauss_newton_steps: Gauss-Newton steps after the rounds (module docstring); 0 = none.
         gauss_newton_max_parameters: the steps run only when at most this many tensor entries
             are free (each step traces twice per entry).
@@ -315,9 +333,8 @@ class FitSettings:
     loss: str = "absolute"
     coarse_blur_px: float = 0.0
     facet_hops: int = 0
-    facet_sweeps: int = 0
-    block_trials: int = 0
     pinned_hops: int = 0
+    seed: int = 0
     gauss_newton_steps: int = 0
     gauss_newton_max_parameters: int = 64
 
@@ -326,37 +343,35 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
                 progress: bool = False, label: str = "fit", finish: Scene | None = None,
                 checkpoint: str | os.PathLike | None = None) -> FitResult:
     """Fit every "fit" parameter of `effects` to the measured spots; see the module docstring.
-    `finish`: the scene the model predicts with; a fit that `scene` traces with rays ends on it
-    when it traces kernels (module docstring). `checkpoint`: a file that keeps the fit's state after
-    each stage, so that a fit stopped midway resumes from it (`FitCheckpoint`)."""
+    `finish`: the scene the model predicts with, when it differs from `scene` (a dataset traced
+    with rays is predicted with kernels); heliostat tensors are fitted on its trace linearised in
+    them (module docstring), scalars alone on `scene`. `checkpoint`: a file that keeps the fit's
+    state after each stage, so that a fit stopped midway resumes from it (`FitCheckpoint`)."""
     effects = {e: dict(p or {}) for e, p in effects.items()}
     pairs = fitted_parameters(effects)
     linear = [p for p in pairs if p in SCALES or p in OFFSETS]
     spread = [p for p in pairs if p not in linear and not REGISTRY[p[0]].parameter(p[1]).array
               and p[0] != "tracking"]
-    for e, k in pairs:  # start values: a spread starts (almost) absent, a linear scalar at its default
-        p = REGISTRY[e].parameter(k)
+    tensors, masks = initial_tensors(effects, scene.heliostat)
+    for e, k in pairs:  # start values (module docstring): spreads at their default with tensors, else
+        p = REGISTRY[e].parameter(k)  # (almost) absent; a linear scalar at its default
         if (e, k) in spread:
-            effects[e][k] = max(p.lower or SEARCH_FLOOR, SEARCH_FLOOR)
+            start = p.default if tensors and isinstance(p.default, float) else SEARCH_FLOOR
+            effects[e][k] = min(max(start, p.lower or SEARCH_FLOOR, SEARCH_FLOOR), p.upper or SEARCH_CEILING)
         elif (e, k) in linear:
             effects[e][k] = p.default
-    tensors, masks = initial_tensors(effects, scene.heliostat)
     target = normalised(data.images, settings.loss, 1.0)
+    resume = FitCheckpoint(checkpoint, LINEARISED, scene, effects, data, settings, finish)
+    if tensors:
+        scene = LinearisedScene.of(finish or scene, effects, tensors, data.azimuth_deg, data.elevation_deg)
     fit = _Fitter(scene, data, target, settings, linear)
     history: list[float] = []
-    generator = torch.Generator().manual_seed(0)  # the sweeps' and block trials' random states
-    kept = False  # whether a block trial was kept
-    resume = FitCheckpoint(checkpoint, scene, effects, data, settings, finish)
     if resume.saved is not None:
-        tensors, effects, history, kept = (resume.saved[k] for k in ("tensors", "effects", "history", "kept"))
-        generator.set_state(resume.saved["generator"])
-        if resume.saved["noise_free"]:
-            fit = _Fitter(finish, data, target, settings, linear)
+        tensors, effects, history = (resume.saved[k] for k in ("tensors", "effects", "history"))
 
     def saved(tensors: dict) -> None:
         """A stage ended with `tensors`: keep the state for a resumed fit."""
-        resume.save({"tensors": tensors, "effects": effects, "history": history, "kept": kept,
-                     "generator": generator.get_state(), "noise_free": fit.scene is not scene})
+        resume.save({"tensors": tensors, "effects": effects, "history": history})
 
     def staged(result: tuple[dict, list[float]]) -> dict:
         """A stage's (tensors, losses): the losses go to the history and the spread scalars are
@@ -382,36 +397,9 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
         search_spreads(fit, effects, tensors, spread)
         saved(tensors)
     many_facets = "surface" in tensors and scene.heliostat.n_facets > 1
-
-    def facet_sweeps(tensors: dict, count: int) -> dict:
-        """`count` facet sweeps (`_Fitter.sweep`), each followed by a descent of everything."""
-        for _ in range(count):
-            if resume.due():
-                tensors, losses = fit.sweep(effects, tensors, masks, generator, progress, label)
-                history.extend(losses)
-                tensors = staged(fit.descend(effects, tensors, masks, progress, label))
-                saved(tensors)
-        return tensors
-
     if settings.facet_hops and many_facets and resume.due():
         tensors = staged(fit.hop(effects, tensors, masks, progress, label))
         saved(tensors)
-    if (finish is not None and tensors and finish.noise_free(effects) and not scene.noise_free(effects)
-            and resume.due()):
-        fit = _Fitter(finish, data, target, settings, linear)
-        tensors = staged(fit.descend(effects, tensors, masks, progress, label + " (noise-free)"))
-        saved(tensors)
-    sweeps = settings.facet_sweeps if many_facets else 0
-    tensors = facet_sweeps(tensors, sweeps)
-    if settings.block_trials and many_facets:
-        if resume.due():
-            before = fit.loss(effects, tensors)
-            trials = fit.block_trials(effects, tensors, masks, generator, progress, label)
-            tensors = staged(trials)
-            kept = bool(trials[1]) and trials[1][-1] < before
-            saved(tensors)
-        if kept:  # a block was kept: the neighbours complement another state
-            tensors = facet_sweeps(tensors, sweeps)
     if settings.pinned_hops and many_facets and resume.due():
         tensors = staged(fit.pinned_hops(effects, tensors, masks, progress, label))
         saved(tensors)
@@ -422,8 +410,7 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
     history.append(fit.loss(effects, tensors))
     if linear:
         effects = fit.with_linear(effects, tensors)
-    effective = {"tracking": lambda t: t, "canting": zero_mean, "surface": without_planes}
-    return FitResult(effects, {k: effective[k](v.detach()) for k, v in tensors.items()}, history, pairs)
+    return FitResult(effects, effective_tensors({k: v.detach() for k, v in tensors.items()}), history, pairs)
 
 
 class FitCheckpoint:
@@ -469,14 +456,6 @@ def search_spreads(fit: _Fitter, effects: dict, tensors: dict, spread: list[tupl
         effects[e][k] = fit.search(effects, tensors, e, k)
 
 
-def _state_rms(tensors: dict) -> tuple[float, float]:
-    """(height RMS (mm) of the plane-free control heights, RMS (mrad) of the tilts about their mean, or 0
-    without canting): the spread of a fitted state, from which random states are drawn."""
-    height_rms = float(without_planes(tensors["surface"]).pow(2).mean().sqrt())
-    tilt_rms = float(zero_mean(tensors["canting"]).pow(2).mean().sqrt()) if "canting" in tensors else 0.0
-    return height_rms, tilt_rms
-
-
 def _flattened(tensors: dict, facets: Tensor) -> dict:
     """A copy of `tensors` with the control heights of `facets` ((K,) long) at 0 and their tilts at
     the heliostat's mean tilt: the state a hop restarts them from."""
@@ -485,28 +464,6 @@ def _flattened(tensors: dict, facets: Tensor) -> dict:
     if "canting" in state:
         state["canting"][facets] = tensors["canting"].mean(0)
     return state
-
-
-def _only_facets(mask: Tensor, facets: Tensor) -> Tensor:
-    """A (F, ...) mask of free entries with every facet but `facets` ((K,) long) held."""
-    held = torch.zeros_like(mask)
-    held[facets] = mask[facets]
-    return held
-
-
-def facet_blocks(centres: Tensor) -> list[Tensor]:
-    """Blocks of neighbouring facets, (4,) long each, from the facet centres (F, 3) (m): every 2 x 2
-    window of the facet grid (rows by y, columns by x, to the millimetre); for facets not on a full
-    grid, every facet with its 3 nearest neighbours; one block of all facets when there are at most 4."""
-    if len(centres) <= 4:
-        return [torch.arange(len(centres))]
-    xs, col = torch.unique(torch.round(centres[:, 0] * 1e3), return_inverse=True)
-    ys, row = torch.unique(torch.round(centres[:, 1] * 1e3), return_inverse=True)
-    cell = {(int(r), int(c)): f for f, (r, c) in enumerate(zip(row, col))}
-    if len(cell) != len(centres) or len(xs) * len(ys) != len(centres) or min(len(xs), len(ys)) < 2:
-        return [(centres - c).norm(dim=1).argsort()[:4] for c in centres]
-    return [torch.tensor([cell[(r + i, c + j)] for i in (0, 1) for j in (0, 1)])
-            for r in range(len(ys) - 1) for c in range(len(xs) - 1)]
 
 
 def blur_levels(coarse_px: float) -> tuple[float, ...]:
@@ -535,13 +492,9 @@ class _Fitter:
         images, lost = traced if shape else (traced, torch.zeros(len(traced)))
         return images / self.data.scale, lost / self.data.scale
 
-    def predict(self, effects: dict, tensors: dict, facets: Tensor | None = None,
-                others: tuple[Tensor, Tensor] | None = None) -> Tensor:
-        """Normalised prediction (N, H, W), linear scalars at their least-squares values. With
-        `facets`, their trace plus `others` (the rest's `traced`, held) is the heliostat's."""
-        images, lost = self.traced(effects, tensors, facets)
-        if others is not None:
-            images, lost = images + others[0], lost + others[1]
+    def predict(self, effects: dict, tensors: dict) -> Tensor:
+        """Normalised prediction (N, H, W), linear scalars at their least-squares values."""
+        images, lost = self.traced(effects, tensors)
         if self.linear:
             a, b = self._line(images.detach())
             images, lost = a * images + b, a * lost
@@ -574,17 +527,14 @@ class _Fitter:
         return round(math.exp(a if fa < fb else b), 4)
 
     def descend(self, effects: dict, tensors: dict, masks: dict, progress: bool, label: str,
-                blur_px: float = 0.0, steps: int | None = None, facets: Tensor | None = None,
-                others: tuple[Tensor, Tensor] | None = None) -> tuple[dict, list[float]]:
+                blur_px: float = 0.0, steps: int | None = None) -> tuple[dict, list[float]]:
         """L-BFGS (strong-Wolfe line search) on the free entries of the heliostat tensors, at most
         `steps` (default the settings') traces with gradient; returns (tensors, loss per trace).
         `blur_px` > 0 compares the images blurred by a Gaussian of that std (pixels): a wider basin
-        for a first pass. `facets` and `others` trace only those facets (see `predict`).
+        for a first pass.
 
         The loss is smooth in the tensors and deterministic (kernel splatting, or bilinear rays
-        with the same random numbers at every trace), which is what quasi-Newton steps need: on
-        the 41-parameter sanity_check fit L-BFGS reaches a 5x lower loss (7 dB) than Adam did,
-        in fewer traces (docs/surface_search.md)."""
+        with the same random numbers at every trace), which is what quasi-Newton steps need."""
         params = {k: v.clone().requires_grad_(True) for k, v in tensors.items()}
         steps = steps or self.settings.steps
         optimizer = torch.optim.LBFGS(list(params.values()), lr=1.0, max_iter=steps, max_eval=steps,
@@ -598,7 +548,7 @@ class _Fitter:
         def closure() -> Tensor:
             optimizer.zero_grad()
             current = {k: torch.where(masks[k], v, tensors[k]) for k, v in params.items()}
-            predicted = self.predict(effects, current, facets, others)
+            predicted = self.predict(effects, current)
             loss = ((gaussian_blur(predicted, blur_px) - target) ** 2).mean()
             if "surface" in current:
                 loss = loss + self.settings.surface_weight * (current["surface"] ** 2).mean()
@@ -616,10 +566,10 @@ class _Fitter:
             label: str) -> tuple[dict, list[float]]:
         """`facet_hops` basin hops (module docstring); returns (tensors, the kept loss after each hop).
         A block is a random facet and its nearest neighbours by centre distance (HOP_BLOCK_SIZES
-        facets in all; drawn from a generator seeded with 0, so a fit is repeatable); its control
+        facets in all; drawn from a generator seeded with the settings' `seed`, so a fit is repeatable); its control
         heights are set to 0 and its tilts to the mean tilt."""
         centres = self.scene.heliostat.facet_translation
-        generator = torch.Generator().manual_seed(0)
+        generator = torch.Generator().manual_seed(self.settings.seed)
         best, losses = self.loss(effects, tensors), []
         for i in range(self.settings.facet_hops):
             facet = int(torch.randint(len(centres), (1,), generator=generator))
@@ -631,65 +581,6 @@ class _Fitter:
             loss = self.loss(effects, trial)
             if loss < best:
                 tensors, best = trial, loss
-            losses.append(best)
-        return tensors, losses
-
-    def sweep(self, effects: dict, tensors: dict, masks: dict, generator: torch.Generator, progress: bool,
-              label: str) -> tuple[dict, list[float]]:
-        """One facet sweep (module docstring): every facet, the one whose flux meets the largest
-        squared residual first (`residual_shares`), refitted alone from its current state, from flat
-        and from SWEEP_STARTS random states (heights and tilts drawn from `generator` with the fit's
-        own RMS); the start that ends lowest is kept when the whole heliostat's loss falls. A facet with
-        nothing free is passed over. Returns (tensors, the kept loss after each facet refitted)."""
-        height_rms, tilt_rms = _state_rms(tensors)
-        best, losses = self.loss(effects, tensors), []
-        order = self.residual_shares(effects, tensors).argsort(descending=True).tolist()
-        for facet in tqdm(order, desc=label + " (facet sweep)", disable=not progress, mininterval=2.0):
-            one = torch.tensor([facet])
-            alone = self._alone(effects, tensors, masks, one)
-            if alone is None:
-                continue  # nothing of this facet is fitted
-            starts = [tensors, {**tensors, "surface": tensors["surface"].clone()}]
-            starts[1]["surface"][facet] = 0.0
-            starts += [self._random_state(tensors, one, generator, height_rms, tilt_rms, True)
-                       for _ in range(SWEEP_STARTS)]
-            ends = [self._refit_alone(effects, start, *alone, one, HOP_BLURS_PX, SWEEP_STEPS)
-                    for start in starts]
-            trial = min(ends, key=lambda e: e[0])[1]
-            loss = self.loss(effects, trial)
-            if loss < best:
-                tensors, best = trial, loss
-            losses.append(best)
-        return tensors, losses
-
-    def block_trials(self, effects: dict, tensors: dict, masks: dict, generator: torch.Generator,
-                     progress: bool, label: str) -> tuple[dict, list[float]]:
-        """`block_trials` block trials (module docstring): each takes the block of neighbouring facets
-        (`facet_blocks`) whose facets' flux meets the most squared residual (`residual_shares`) among
-        those not tried yet, refits it alone from TRIAL_STARTS random states (heights and tilts drawn
-        from `generator` with the fit's own RMS) through the blur levels TRIAL_BLURS_PX, and keeps the
-        lowest end point when the whole heliostat's loss falls; a kept block is followed by a descent
-        of everything. A block with nothing free is passed over (it counts as a trial). Returns (tensors,
-        the kept loss after each block refitted)."""
-        blocks = facet_blocks(self.scene.heliostat.facet_translation)
-        height_rms, tilt_rms = _state_rms(tensors)
-        best, losses = self.loss(effects, tensors), []
-        for trial in range(min(self.settings.block_trials, len(blocks))):
-            shares = self.residual_shares(effects, tensors)
-            block = blocks.pop(int(torch.stack([shares[b].sum() for b in blocks]).argmax()))
-            alone = self._alone(effects, tensors, masks, block)
-            if alone is None:
-                continue  # nothing of this block is fitted
-            name = f"{label} (block trial {trial + 1})"
-            starts = (self._random_state(tensors, block, generator, height_rms, tilt_rms, False)
-                      for _ in range(TRIAL_STARTS))
-            ends = [self._refit_alone(effects, start, *alone, block, TRIAL_BLURS_PX, TRIAL_STEPS)
-                    for start in tqdm(starts, desc=name, total=TRIAL_STARTS, disable=not progress,
-                                      mininterval=2.0)]
-            kept = min(ends, key=lambda e: e[0])[1]
-            if self.loss(effects, kept) < best:
-                tensors, _ = self.descend(effects, kept, masks, progress, name)
-                best = self.loss(effects, tensors)
             losses.append(best)
         return tensors, losses
 
@@ -721,46 +612,6 @@ class _Fitter:
                 order = self.residual_shares(effects, tensors).argsort(descending=True).tolist()
             losses.append(best)
         return tensors, losses
-
-    def _random_state(self, tensors: dict, facets: Tensor, generator: torch.Generator, height_rms: float,
-                      tilt_rms: float, around_current_tilts: bool) -> dict:
-        """`tensors` with random control heights (plane-free, RMS `height_rms` mm) on `facets` ((K,)
-        long) and random tilts (RMS `tilt_rms` mrad) added to their current ones or, if not
-        `around_current_tilts`, to the mean tilt of the heliostat."""
-        state = {k: v.clone() for k, v in tensors.items()}
-        shape = state["surface"][facets].shape
-        state["surface"][facets] = without_planes(torch.randn(shape, generator=generator) * height_rms)
-        if "canting" in state:
-            centre = state["canting"][facets] if around_current_tilts else state["canting"].mean(0)
-            state["canting"][facets] = centre + torch.randn(len(facets), 2, generator=generator) * tilt_rms
-        return state
-
-    def _alone(self, effects: dict, tensors: dict, masks: dict,
-               facets: Tensor) -> tuple[dict, tuple[Tensor, Tensor]] | None:
-        """(masks, others) to refit `facets` ((K,) long) alone: `masks` with every other facet and
-        the tracking held, and the other facets' `traced` (held); None when nothing of `facets` is free."""
-        alone = {k: torch.zeros_like(m) if k == "tracking" else _only_facets(m, facets)
-                 for k, m in masks.items()}
-        if not any(m.any() for m in alone.values()):
-            return None
-        rest = torch.tensor([f for f in range(self.scene.heliostat.n_facets) if f not in facets.tolist()],
-                            dtype=torch.long)
-        if not len(rest):  # the block is the whole heliostat: nothing is held
-            return alone, (torch.zeros_like(self.target), torch.zeros(len(self.target)))
-        with torch.no_grad():
-            return alone, self.traced(effects, tensors, rest)
-
-    def _refit_alone(self, effects: dict, start: dict, masks: dict, others: tuple[Tensor, Tensor],
-                     facets: Tensor, blurs: tuple[float, ...], steps: int) -> tuple[float, dict]:
-        """(loss, tensors): `facets` ((K,) long) descended alone from `start` through the blur levels
-        `blurs`, `steps` traces each, with the others' `traced` held (`_alone` gives `masks` and
-        `others`); the loss of the end point is traced once more (L-BFGS's last evaluated point is not
-        the one it returns)."""
-        for blur in blurs:
-            start, _ = self.descend(effects, start, masks, False, "", blur, steps, facets, others)
-        with torch.no_grad():
-            fitted = self.predict(effects, start, facets, others)
-        return float(((fitted - self.target) ** 2).mean()), start
 
     def residual_shares(self, effects: dict, tensors: dict) -> Tensor:
         """(F,) each facet's share of the squared residual: the residual in every pixel split between

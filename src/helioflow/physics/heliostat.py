@@ -261,15 +261,10 @@ def sample_surface(heliostat: Heliostat, cells_per_side: int) -> SurfaceSamples:
     dtype, device = h.facet_size.dtype, h.facet_size.device
     g = cells_per_side
     s = (np.arange(g) + 0.5) / g  # cell centres in [0, 1]
-    n_control = h.control_heights.shape[-1]
-    b, db = (torch.as_tensor(a, dtype=dtype, device=device) for a in bspline_basis(s, n_control))
     w, hgt = h.facet_size[:, 0], h.facet_size[:, 1]  # (F,)
     x = (torch.as_tensor(s, dtype=dtype, device=device) - 0.5)[None, :] * w[:, None]  # (F, G) right
     y = (0.5 - torch.as_tensor(s, dtype=dtype, device=device))[None, :] * hgt[:, None]  # (F, G) up (top row first)
-    c = h.control_heights  # (F, C, C) indexed [row along up (top first), column along right]
-    z = torch.einsum("ui,fij,vj->fuv", b, c, b)  # (F, G_up, G_right)
-    dz_dx = torch.einsum("ui,fij,vj->fuv", b, c, db) / w[:, None, None]
-    dz_dy = -torch.einsum("ui,fij,vj->fuv", db, c, b) / hgt[:, None, None]
+    z, dz_dx, dz_dy = deformation(h.control_heights, h.facet_size, g)
     xx, yy = x[:, None, :].expand_as(z), y[:, :, None].expand_as(z)
     if h.facet_focal_length is not None:
         f = h.facet_focal_length
@@ -290,6 +285,22 @@ def sample_surface(heliostat: Heliostat, cells_per_side: int) -> SurfaceSamples:
         area=(w * hgt / g**2)[:, None].expand(-1, g * g).reshape(-1),
         owner=torch.zeros(n_points, dtype=torch.long, device=device),
     )
+
+
+def deformation(control_heights: Tensor, facet_size: Tensor, cells_per_side: int) -> tuple[Tensor, Tensor, Tensor]:
+    """The B-spline deformation at the cell centres of every facet (see `sample_surface`): its
+    height (unit of the control heights), slope along the facet's right and up axes (that unit per
+    metre), each (F, G, G) with rows along up (top first) and columns along right."""
+    g, n_control = cells_per_side, control_heights.shape[-1]
+    dtype, device = control_heights.dtype, control_heights.device
+    b, db = (torch.as_tensor(a, dtype=dtype, device=device)
+             for a in bspline_basis((np.arange(g) + 0.5) / g, n_control))
+    w, hgt = facet_size[:, 0, None, None], facet_size[:, 1, None, None]
+    c = control_heights  # (F, C, C) indexed [row along up (top first), column along right]
+    z = torch.einsum("ui,fij,vj->fuv", b, c, b)
+    dz_dx = torch.einsum("ui,fij,vj->fuv", b, c, db) / w
+    dz_dy = -torch.einsum("ui,fij,vj->fuv", db, c, b) / hgt
+    return z, dz_dx, dz_dy
 
 
 def ideal_joint_angles(mount: str, normal: Tensor) -> tuple[Tensor, Tensor]:

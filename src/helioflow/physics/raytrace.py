@@ -318,45 +318,83 @@ def _splat_kernel(c: _Rays, target: Target, optics: Optics, n_facets: int) -> Te
     The footprint of a ray, power * f(theta) * cos(gamma) / r^2, changes little across one facet
     (its direction and path length vary by a few mrad and percent), so each facet's central rays
     are deposited bilinearly on a canvas that extends the target by half its size on each side,
-    and the canvas is convolved (FFT) with the footprint of the facet's power-weighted mean ray.
-    Flux from rays that land outside the canvas is not followed.
+    and the canvas is convolved (FFT) with the footprint of the facet's power-weighted mean ray
+    (`splat_footprints`). Flux from rays that land outside the canvas is not followed.
     """
-    density = density_lookup(optics.sun, float(optics.slope_error))
     n_sun, n_points = c.power.shape
-    rows, cols = target.resolution
-    pad_r, pad_c = rows // 2, cols // 2
-    canvas = replace(target, width=target.width * (cols + 2 * pad_c) / cols,
-                     height=target.height * (rows + 2 * pad_r) / rows, resolution=(rows + 2 * pad_r, cols + 2 * pad_c))
+    canvas = padded_canvas(target)
     direction, position = _pixel_coefficients(c, canvas)
     t = position[0]["base"] / direction[0]["base"]  # (S, P, 1); the normal axis is not rescaled
-    power = torch.where((t > 0) & (direction[0]["base"] < 0), c.power[..., None], 0.0)
-    col = torch.addcmul(position[1]["base"], t, direction[1]["base"])
-    row = torch.addcmul(position[2]["base"], t, direction[2]["base"])
-    deposited = deposit(*(x.reshape(n_sun * n_facets, -1) for x in (col, row, power)), canvas.resolution)
+    power = torch.where((t > 0) & (direction[0]["base"] < 0), c.power[..., None], 0.0)[..., 0]
+    col = torch.addcmul(position[1]["base"], t, direction[1]["base"])[..., 0]
+    row = torch.addcmul(position[2]["base"], t, direction[2]["base"])[..., 0]
     central = c.along[:, :, 0, :]  # (S, P, 3) on (normal, right, up)
     length = central.norm(dim=-1)
-    weight = power[..., 0].reshape(n_sun, n_facets, -1)
+    unit, path = mean_rays(central / length[..., None], t[..., 0] * length, power, n_facets)
+    groups = n_sun * n_facets
+    flux = splat_footprints(col.reshape(groups, -1), row.reshape(groups, -1), power.reshape(groups, -1),
+                            unit, path, target, optics)
+    return flux.reshape(n_sun, n_facets, *target.resolution).sum(1)
+
+
+def padded_canvas(target: Target) -> Target:
+    """The target extended by half its size on each side, same pixels: where `splat_footprints`
+    deposits (pixel coordinates on it are the target's plus half its resolution)."""
+    rows, cols = target.resolution
+    pad_r, pad_c = rows // 2, cols // 2
+    return replace(target, width=target.width * (cols + 2 * pad_c) / cols,
+                   height=target.height * (rows + 2 * pad_r) / rows, resolution=(rows + 2 * pad_r, cols + 2 * pad_c))
+
+
+def mean_rays(unit: Tensor, path: Tensor, power: Tensor, n_groups: int) -> tuple[Tensor, Tensor]:
+    """The power-weighted mean ray of each group of points: unit (S, P, 3) central-ray directions on
+    the target's (normal, right, up), path (S, P) lengths (m) and power (S, P) (W), the P points in
+    `n_groups` equal consecutive groups -> (S * n_groups, 3) unit directions, (S * n_groups,) paths."""
+    n_sun = unit.shape[0]
+    weight = power.reshape(n_sun, n_groups, -1)
     weight = weight / weight.sum(-1, keepdim=True).clamp_min(1e-30)
-    unit = (weight[..., None] * (central / length[..., None]).reshape(n_sun, n_facets, -1, 3)).sum(2)
-    path = (weight * (t[..., 0] * length).reshape(n_sun, n_facets, -1)).sum(-1)
-    unit = normalize(unit).reshape(-1, 3)
-    path = path.reshape(-1)
-    # The footprint reaches at most support * path / cos(incidence on the target).
-    spread = support_radius(optics.sun, optics.slope_error) * path / unit[:, 0].abs()
+    mean = (weight[..., None] * unit.reshape(n_sun, n_groups, -1, 3)).sum(2)
+    mean_path = (weight * path.reshape(n_sun, n_groups, -1)).sum(-1)
+    return normalize(mean).reshape(-1, 3), mean_path.reshape(-1)
+
+
+def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path: Tensor, target: Target,
+                     optics: Optics) -> Tensor:
+    """Central rays of B groups deposited bilinearly on the padded canvas (`padded_canvas`) and
+    convolved with the footprint of each group's mean ray: (B, H, W) tent-averaged power per
+    pixel (W) of the target.
+
+    Args:
+        col, row: (B, N) padded pixel coordinates on the canvas (see `deposit`).
+        power: (B, N) power of each ray (W).
+        unit, path: (B, 3) mean ray direction on the target's (normal, right, up) and (B,) its
+            length (m) (`mean_rays`).
+    """
+    rows, cols = target.resolution
+    pad_r, pad_c = rows // 2, cols // 2
+    radius = support_radius(optics.sun, optics.slope_error)
+    if radius == 0.0:  # a point sun without slope error: no spread
+        return deposit(col - pad_c, row - pad_r, power, target.resolution)
+    # The footprint reaches at most support * path / cos(incidence on the target); rays farther
+    # than that (and the bilinear pixel) beside the target add nothing to it, so the canvas is cut
+    # down to that margin.
+    spread = radius * path / unit[:, 0].abs()
     pw, ph = target.pixel_size
     widest = float(spread.detach().max()) if spread.numel() else 0.0
     jr, jc = min(rows + pad_r, math.ceil(widest / ph) + 1), min(cols + pad_c, math.ceil(widest / pw) + 1)
+    mr, mc = min(pad_r, jr + 1), min(pad_c, jc + 1)
+    deposited = deposit(col - (pad_c - mc), row - (pad_r - mr), power, (rows + 2 * mr, cols + 2 * mc))
+    density = density_lookup(optics.sun, float(optics.slope_error))
     kernel = footprint(density, unit, path, unit.new_tensor(target.pixel_size).expand(len(unit), 2), (jr, jc))
     # A footprint that lies wholly inside the kernel window carries exactly the ray's power;
     # renormalising removes the lattice error of sampling a hard-edged sun disc on pixels.
     inside = spread < min(jr * ph, jc * pw)
     total = kernel.sum((-2, -1)) * target.pixel_area
     kernel = torch.where(inside[:, None, None], kernel / total[:, None, None].clamp_min(1e-30), kernel)
-    # (S * F, Hc + 2 Jr, Wc + 2 Jc) centred on the canvas; both factors are >= 0, so the clamp only
-    # removes the FFT's round-off (which would otherwise leave tiny negative flux in the images).
+    # (B, rows + 2 mr + 2 jr, cols + 2 mc + 2 jc) centred on the canvas; both factors are >= 0, so
+    # the clamp only removes the FFT's round-off (which would otherwise leave tiny negative flux).
     flux = convolve(deposited, kernel).clamp_min(0.0)
-    flux = flux[:, jr + pad_r : jr + pad_r + rows, jc + pad_c : jc + pad_c + cols]
-    return flux.reshape(n_sun, n_facets, rows, cols).sum(1) * target.pixel_area
+    return flux[:, jr + mr : jr + mr + rows, jc + mc : jc + mc + cols] * target.pixel_area
 
 
 @functools.lru_cache(maxsize=8)
