@@ -1,4 +1,4 @@
-"""Benchmarks that print numbers: `python -m helioflow.bench raytrace` or `... bench field`.
+"""Benchmarks that print numbers: `python -m helioflow.bench raytrace`, `... bench field` or `... bench fit`.
 
 raytrace: one 2 m x 2 m deformed heliostat 63 m from a 64 x 64 target (the sanity_check scene:
 Buie sun CSR 0.1, slope error 0.5 mrad), one sun position.
@@ -14,6 +14,13 @@ tracking errors) on an 8 m x 8 m receiver at 128 x 128, Buie sun CSR 0.1, slope 
 clear-day attenuation, shading and blocking; one sun position. Each field in a fresh process:
 wall time of building the geometry and of the flux map (after a warm-up map of 10 heliostats that
 fills the footprint tables), peak RSS beside the RSS after imports, and the power budget.
+
+fit: drt's fit of a dataset's heliostat from its design (default: the default experiment's
+semi_sphere, 24 facets; `snakemake -j2 results/default/datasets/semi_sphere.h5` makes it), with the
+settings of config.yaml's networks.drt, in one process: the fit on the linearised trace and the
+rounds-only descent on the exact trace (no hops; bilinear rays for a ray-traced dataset), each
+with its wall time, traces (images traced with gradient or without, counted), held-out PSNR per
+split and surface height error (RMS error over RMS amplitude, as the recovery rule computes it).
 """
 
 from __future__ import annotations
@@ -196,14 +203,81 @@ def field(threads: int) -> None:
           "reflected power")
 
 
+def fit(dataset: str, heliostat: str, threads: int) -> None:
+    """The `fit` benchmark (module docstring)."""
+    from .config import load_config, validate_config
+    from .data.hdf5 import read_dataset
+    from .data.surfaces import read_heliostat
+    from .evaluate.recovery import surface_heights
+    from .models.physical import drt_effects
+    from .models.physics_fit import FitSettings, Measurements, _Fitter, dataset_scene, fit_effects
+    from .workflow import model_effects
+
+    torch.set_num_threads(threads)
+    ds, true = read_dataset(dataset), read_heliostat(heliostat).to("cpu")
+    config = validate_config(load_config("config.yaml"))
+    drt = config["networks"]["drt"]
+    train = ds.indices("train")
+    index = train[torch.linspace(0, len(train) - 1, min(len(train), drt["fit_images"])).round().long().numpy()]
+    scale = float(ds.images[train].max())
+
+    def split(i) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        return (torch.tensor(ds.images[i]) / scale, torch.tensor(ds.azimuth_deg[i]).float(),
+                torch.tensor(ds.elevation_deg[i]).float())
+
+    data = Measurements(*split(index), scale)
+    design = true.ideal()
+    shape = ds.images.shape[1:]
+    exact = dataset_scene(design, ds.attrs, shape, drt["cells_per_side"], 100_000, fitting=True)
+    predicting = dataset_scene(design, ds.attrs, shape, drt["cells_per_side"], 100_000, fitting=False)
+    effects = drt_effects(model_effects(config, ds.attrs["dataset"]), design.n_facets)
+    settings = FitSettings(steps=drt["fit_steps"], rounds=drt["rounds"], coarse_blur_px=drt["coarse_blur_px"],
+                           facet_hops=drt["facet_hops"], pinned_hops=drt["pinned_hops"],
+                           gauss_newton_steps=drt["gauss_newton_steps"])
+    runs = {"linearised trace (the fit)": (settings, predicting),
+            "exact trace, rounds only": (FitSettings(steps=settings.steps, rounds=settings.rounds,
+                                                      coarse_blur_px=settings.coarse_blur_px, linearised=False), exact)}
+    traced, count = _Fitter.traced, [0]
+
+    def counted(self, *args, **kwargs):
+        count[0] += 1
+        return traced(self, *args, **kwargs)
+
+    _Fitter.traced = counted
+    truth = surface_heights(true.control_heights.double() * 1e3)
+    print(f"{dataset}: {design.n_facets} facets, {len(index)} fit images, {threads} threads")
+    for name, (s, scene_) in runs.items():
+        count[0] = 0
+        start = time.perf_counter()
+        result = fit_effects(scene_, effects, data, s, finish=predicting)
+        wall = time.perf_counter() - start
+        fitted = {e: dict(p) for e, p in result.effects.items()}
+        scores = []
+        for name_ in ("interpolation", "extrapolation"):
+            images, az, el = split(ds.indices(name_))
+            with torch.no_grad():
+                predicted = predicting.simulate(fitted, result.tensors, az, el, seed=1) / scale
+            scores.append(f"{name_} {10 * math.log10(1.0 / float(((predicted - images) ** 2).mean())):.2f} dB")
+        heights = surface_heights(result.tensors["surface"].double())
+        error = float((heights - truth).pow(2).mean().sqrt() / truth.pow(2).mean().sqrt())
+        print(f"  {name}: {wall:.0f} s, {count[0]} traces, held-out PSNR {', '.join(scores)}, "
+              f"height error {error:.0%}")
+    _Fitter.traced = traced
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m helioflow.bench", description=__doc__.splitlines()[0])
-    ap.add_argument("name", choices=["raytrace", "field"])
+    ap.add_argument("name", choices=["raytrace", "field", "fit"])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--reference-rays", type=int, default=10**8)
+    ap.add_argument("--dataset", default="results/default/datasets/semi_sphere.h5", help="fit: the dataset")
+    ap.add_argument("--heliostat", default="results/default/surfaces/multi_facet.h5",
+                    help="fit: the true heliostat the dataset was traced from")
     args = ap.parse_args(argv)
     if args.name == "field":
         field(args.threads)
+    elif args.name == "fit":
+        fit(args.dataset, args.heliostat, args.threads)
     else:
         raytrace(args.threads, args.reference_rays)
 

@@ -41,10 +41,11 @@ held, and a hop that frees everything at once lets the facet slide back into the
 for; pinned flat, the facet makes its neighbours give up the cover first.
 
 A fit with few free tensor entries (at most `gauss_newton_max_parameters`) ends with
-Gauss-Newton steps on them (`gauss_newton_steps`), then one more spread search. L-BFGS stops in
-long flat valleys: a single-azimuth scan turns the mirror about nearly one axis, so the elevation
-offset and the northward pedestal tilt move the spot almost alike. Solving the normal equations
-steps along the valley at once.
+Gauss-Newton steps on them (`gauss_newton_steps`) on the exact trace, then one more spread search
+there: they step along long flat valleys at once (a single-azimuth scan turns the mirror about
+nearly one axis, so the elevation offset and the northward pedestal tilt move the spot almost
+alike), and on the exact trace they remove the last of what the linearisation leaves out (the
+cells' power and footprints follow the errors too, at a level only a near-perfect fit sees).
 
 Two losses: "absolute" compares images divided by one scale (the dataset's maximum, as the
 metrics do); "shape" compares images each divided by its own sum, so a pure scale (reflectivity,
@@ -321,6 +322,8 @@ class FitSettings:
         pinned_hops: pinned hops after the facet hops (module docstring); 0 = none. Each costs
             2 * PIN_STEPS traces of the heliostat.
         seed: seeds the facet hops' random blocks.
+        linearised: fit heliostat tensors on the linearised trace (module docstring); False: on the
+            scene's own trace, tens of times slower (what `python -m helioflow.bench fit` compares).
         gauss_newton_steps: Gauss-Newton steps after the rounds (module docstring); 0 = none.
         gauss_newton_max_parameters: the steps run only when at most this many tensor entries
             are free (each step traces twice per entry).
@@ -335,6 +338,7 @@ class FitSettings:
     facet_hops: int = 0
     pinned_hops: int = 0
     seed: int = 0
+    linearised: bool = True
     gauss_newton_steps: int = 0
     gauss_newton_max_parameters: int = 64
 
@@ -362,7 +366,8 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
             effects[e][k] = p.default
     target = normalised(data.images, settings.loss, 1.0)
     resume = FitCheckpoint(checkpoint, LINEARISED, scene, effects, data, settings, finish)
-    if tensors:
+    exact = finish or scene
+    if tensors and settings.linearised:
         scene = LinearisedScene.of(finish or scene, effects, tensors, data.azimuth_deg, data.elevation_deg)
     fit = _Fitter(scene, data, target, settings, linear)
     history: list[float] = []
@@ -405,6 +410,7 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
         saved(tensors)
     free = sum(int(m.sum()) for m in masks.values())
     if settings.gauss_newton_steps and 0 < free <= settings.gauss_newton_max_parameters and resume.due():
+        fit = _Fitter(exact, data, target, settings, linear)  # on the exact trace: below the linearisation's error
         tensors = staged(fit.gauss_newton(effects, tensors, masks))
         saved(tensors)
     history.append(fit.loss(effects, tensors))

@@ -102,9 +102,10 @@ def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: 
               at: dict[str, Tensor]) -> LinearisedTrace:
     """Trace the hits of `heliostat` at the (S,) sun positions (rad), its error fields replaced by
     the tensors in `at` (any of "tracking" (5,) mrad, "canting" (F, 2) mrad, "surface" (F, C, C)
-    mm, effective values), and their derivatives by those tensors: central differences in
-    float64, two traces per direction (every facet's entry, or every cell's height or slope, is
-    stepped at once: a cell's hit moves only with its own facet's entries and its own surface)."""
+    mm, effective values), and their derivatives by those tensors: central differences in float64
+    on the CPU (returned in the heliostat's dtype and device), two traces per direction (every
+    facet's entry, or every cell's height or slope, is stepped at once: a cell's hit moves only
+    with its own facet's entries and its own surface)."""
     h = heliostat.to("cpu", torch.float64)
     at = {k: v.detach().to("cpu", torch.float64) for k, v in at.items()}
     base = {"tracking": h.tracking_error * 1e3, "canting": h.canting_error * 1e3, "surface": h.control_heights * 1e3}
@@ -155,7 +156,12 @@ def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: 
         return (moved[0] - moved[1]) / (2 * FD_STEP)
 
     counts = {"tracking": 5, "canting": 2, "surface": 3}
-    derivatives = {k: torch.stack([derivative(k, i) for i in range(counts[k])], -1).float() for k in at}
-    return LinearisedTrace(hits.float(), derivatives, h.facet_size.float(), g, power.float(), mean_unit.float(),
-                           mean_path.float(), float((target.center - heliostat.position).norm()),
-                           {k: v.float() for k, v in at.items()}, target)
+    dtype, device = heliostat.facet_size.dtype, heliostat.facet_size.device
+
+    def back(x: Tensor) -> Tensor:  # to the heliostat's dtype and device
+        return x.to(device=device, dtype=dtype)
+
+    derivatives = {k: back(torch.stack([derivative(k, i) for i in range(counts[k])], -1)) for k in at}
+    return LinearisedTrace(back(hits), derivatives, back(h.facet_size), g, back(power), back(mean_unit),
+                           back(mean_path), float((target.center - heliostat.position).norm()),
+                           {k: back(v) for k, v in at.items()}, target)
