@@ -89,10 +89,9 @@ def test_lbfgs_recovers_tracking_errors():
 
 def test_gauss_newton_recovers_tracking_errors_from_a_single_azimuth_scan():
     """Sun at one azimuth, elevation 5-85 deg: the elevation offset and the northward pedestal
-    tilt move the spot almost alike (the sanity_check design), a long flat valley. On the exact
-    trace L-BFGS stopped in it 0.7 mrad from the truth; on the linearised trace it reaches the
-    truth, and the Gauss-Newton steps after it (a step is taken only when the loss falls) stay
-    there and do not raise the loss."""
+    tilt move the spot almost alike (the sanity_check design). L-BFGS alone stops in that valley,
+    0.7 mrad from the truth; the Gauss-Newton steps after it recover all five parameters and cut the
+    loss by more than 1000x (a step is taken only when the loss falls; the last may find none to take)."""
     s = scene()
     truth = torch.tensor([-0.5, -1.6, 0.2, 0.1, -1.2])
     el = torch.linspace(5.0, 85.0, 16)
@@ -102,10 +101,10 @@ def test_gauss_newton_recovers_tracking_errors_from_a_single_azimuth_scan():
     data = Measurements(images / images.max(), az, el, float(images.max()))
     effects = {"sunshape": BUIE, "tracking": {f"{n}_mrad": "fit" for n in TRACKING_PARAMETERS}}
     descent = fit_effects(s, effects, data, FitSettings(steps=60))
-    assert torch.allclose(descent.tensors["tracking"], truth, atol=0.02), descent.tensors["tracking"]
+    assert (descent.tensors["tracking"] - truth).abs().max() > 0.5
     result = fit_effects(s, effects, data, FitSettings(steps=60, gauss_newton_steps=4))
     assert torch.allclose(result.tensors["tracking"], truth, atol=0.02), result.tensors["tracking"]
-    assert result.history[-1] <= descent.history[-1]
+    assert result.history[-1] < 1e-3 * descent.history[-1], (descent.history[-1], result.history[-1])
 
 
 @pytest.mark.parametrize("key", ["gauss_newton_steps", "facet_hops", "pinned_hops", "seed"])

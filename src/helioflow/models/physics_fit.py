@@ -8,9 +8,12 @@ and the heliostat tensors being fitted. Parameters are fitted in three ways, by 
   (`LinearisedScene`, physics.linearised): where each surface cell's ray meets the target is
   linear in the tensors at the sizes calibration measures, so the hits and their derivatives are
   traced once and every descent step only moves them, deposits them and convolves with the
-  footprint (the kernel trace's noise-free image, tens of times faster than a trace). Canting
-  tilts enter without their mean and heights without each facet's plane, so that no effect can
-  mimic another (a common tilt is tracking, a facet's tilt is canting);
+  footprint (the kernel trace's noise-free image, tens of times faster than a trace). A single
+  facet is fitted on the exact trace: its trace costs one convolution per image either way, and a
+  fit that reaches 75 dB there sees what the linearisation leaves out (the cells' power and
+  footprints follow the errors too). Canting tilts enter without their mean and heights without
+  each facet's plane, so that no effect can mimic another (a common tilt is tracking, a facet's
+  tilt is canting);
 - spread scalars (sun shape, slope error, camera blur): golden-section search on a log scale
   within the registry bounds (the kernel tracer is not differentiable in them);
 - linear scalars (camera gain, reflectivity, constant transmittance; camera background): closed
@@ -322,8 +325,9 @@ class FitSettings:
         pinned_hops: pinned hops after the facet hops (module docstring); 0 = none. Each costs
             2 * PIN_STEPS traces of the heliostat.
         seed: seeds the facet hops' random blocks.
-        linearised: fit heliostat tensors on the linearised trace (module docstring); False: on the
-            scene's own trace, tens of times slower (what `python -m helioflow.bench fit` compares).
+        linearised: fit the tensors of a heliostat with several facets on the linearised trace
+            (module docstring); False: on the scene's own trace, tens of times slower (what
+            `python -m helioflow.bench fit` compares).
         gauss_newton_steps: Gauss-Newton steps after the rounds (module docstring); 0 = none.
         gauss_newton_max_parameters: the steps run only when at most this many tensor entries
             are free (each step traces twice per entry).
@@ -367,7 +371,7 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
     target = normalised(data.images, settings.loss, 1.0)
     resume = FitCheckpoint(checkpoint, LINEARISED, scene, effects, data, settings, finish)
     exact = finish or scene
-    if tensors and settings.linearised:
+    if tensors and settings.linearised and scene.heliostat.n_facets > 1:
         scene = LinearisedScene.of(finish or scene, effects, tensors, data.azimuth_deg, data.elevation_deg)
     fit = _Fitter(scene, data, target, settings, linear)
     history: list[float] = []
@@ -410,7 +414,7 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
         saved(tensors)
     free = sum(int(m.sum()) for m in masks.values())
     if settings.gauss_newton_steps and 0 < free <= settings.gauss_newton_max_parameters and resume.due():
-        fit = _Fitter(exact, data, target, settings, linear)  # on the exact trace: below the linearisation's error
+        fit = _Fitter(exact, data, target, settings, linear)  # the exact trace, below the linearisation's error
         tensors = staged(fit.gauss_newton(effects, tensors, masks))
         saved(tensors)
     history.append(fit.loss(effects, tensors))
