@@ -17,8 +17,9 @@ fills the footprint tables), peak RSS beside the RSS after imports, and the powe
 
 fit: drt's fit of a dataset's heliostat from its design (default: the default experiment's
 semi_sphere, 24 facets; `snakemake -j2 results/default/datasets/semi_sphere.h5` makes it), with the
-settings of config.yaml's networks.drt, in one process: the fit on the linearised trace and the
-rounds-only descent on the exact trace (no hops; bilinear rays for a ray-traced dataset), each
+settings of config.yaml's networks.drt, in one process: the fit (on the linearised trace for several
+facets) and the rounds-only descent on the exact trace (no hops; bilinear rays for a ray-traced
+dataset: what drt ran before the linearised trace, as the `quick` variant), each
 with its wall time, traces (images traced with gradient or without, counted), held-out PSNR per
 split and surface height error (RMS error over RMS amplitude, as the recovery rule computes it).
 """
@@ -234,7 +235,7 @@ def fit(dataset: str, heliostat: str, threads: int) -> None:
     settings = FitSettings(steps=drt["fit_steps"], rounds=drt["rounds"], coarse_blur_px=drt["coarse_blur_px"],
                            facet_hops=drt["facet_hops"], pinned_hops=drt["pinned_hops"],
                            gauss_newton_steps=drt["gauss_newton_steps"])
-    runs = {"linearised trace (the fit)": (settings, predicting),
+    runs = {"the fit (config.yaml's drt)": (settings, predicting),
             "exact trace, rounds only": (FitSettings(steps=settings.steps, rounds=settings.rounds,
                                                       coarse_blur_px=settings.coarse_blur_px, linearised=False), exact)}
     traced, count = _Fitter.traced, [0]
@@ -261,7 +262,7 @@ def fit(dataset: str, heliostat: str, threads: int) -> None:
         heights = surface_heights(result.tensors["surface"].double())
         error = float((heights - truth).pow(2).mean().sqrt() / truth.pow(2).mean().sqrt())
         print(f"  {name}: {wall:.0f} s, {count[0]} traces, held-out PSNR {', '.join(scores)}, "
-              f"height error {error:.0%}")
+              f"height error {error:.1%}")
     _Fitter.traced = traced
 
 

@@ -425,11 +425,10 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
 
 class FitCheckpoint:
     """A fit's state after each of its stages (the rigid descent, each round, the facet hops, the
-    noise-free finish, each facet sweep, the block trials, the pinned hops, the Gauss-Newton steps),
-    kept in a file (written whole after every stage), so that a fit stopped midway (killed, out of
-    time) resumes after the last stage it finished and ends exactly where it would have ended
-    uninterrupted: the state holds the tensors, the effect list, the loss history and the random
-    generator. The file also holds the `fingerprint` of what the fit depends on (`parts`); one made by
+    pinned hops, the Gauss-Newton steps), kept in a file (written whole after every stage), so that
+    a fit stopped midway (killed, out of time) resumes after the last stage it finished and ends
+    exactly where it would have ended uninterrupted: the state holds the tensors, the effect list and
+    the loss history. The file also holds the `fingerprint` of what the fit depends on (`parts`); one made by
     another fit is ignored (and overwritten). Without a path nothing is kept (and nothing hashed)."""
 
     def __init__(self, path: str | os.PathLike | None, *parts):
