@@ -21,7 +21,8 @@ settings of config.yaml's networks.drt, in one process: the fit (on the linearis
 facets) and the rounds-only descent on the exact trace (no hops; bilinear rays for a ray-traced
 dataset: what drt ran before the linearised trace, as the `quick` variant), each
 with its wall time, traces (images traced with gradient or without, counted), held-out PSNR per
-split and surface height error (RMS error over RMS amplitude, as the recovery rule computes it).
+split (mean over its images, as the evaluate rule scores) and surface height error (RMS error over RMS
+amplitude, as the recovery rule computes it).
 """
 
 from __future__ import annotations
@@ -209,6 +210,7 @@ def fit(dataset: str, heliostat: str, threads: int) -> None:
     from .config import load_config, validate_config
     from .data.hdf5 import read_dataset
     from .data.surfaces import read_heliostat
+    from .evaluate.metrics import psnr as split_psnr
     from .evaluate.recovery import surface_heights
     from .models.physical import drt_effects
     from .models.physics_fit import FitSettings, Measurements, _Fitter, dataset_scene, fit_effects
@@ -252,13 +254,12 @@ def fit(dataset: str, heliostat: str, threads: int) -> None:
         start = time.perf_counter()
         result = fit_effects(scene_, effects, data, s, finish=predicting)
         wall = time.perf_counter() - start
-        fitted = {e: dict(p) for e, p in result.effects.items()}
         scores = []
         for name_ in ("interpolation", "extrapolation"):
             images, az, el = split(ds.indices(name_))
             with torch.no_grad():
-                predicted = predicting.simulate(fitted, result.tensors, az, el, seed=1) / scale
-            scores.append(f"{name_} {10 * math.log10(1.0 / float(((predicted - images) ** 2).mean())):.2f} dB")
+                predicted = predicting.simulate(result.effects, result.tensors, az, el, seed=1) / scale
+            scores.append(f"{name_} {float(split_psnr(predicted.numpy(), images.numpy()).mean()):.2f} dB")
         heights = surface_heights(result.tensors["surface"].double())
         error = float((heights - truth).pow(2).mean().sqrt() / truth.pow(2).mean().sqrt())
         print(f"  {name}: {wall:.0f} s, {count[0]} traces, held-out PSNR {', '.join(scores)}, "

@@ -372,7 +372,7 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
     resume = FitCheckpoint(checkpoint, LINEARISED, scene, effects, data, settings, finish)
     exact = finish or scene
     if tensors and settings.linearised and scene.heliostat.n_facets > 1:
-        scene = LinearisedScene.of(finish or scene, effects, tensors, data.azimuth_deg, data.elevation_deg)
+        scene = LinearisedScene.of(exact, effects, tensors, data.azimuth_deg, data.elevation_deg)
     fit = _Fitter(scene, data, target, settings, linear)
     history: list[float] = []
     if resume.saved is not None:

@@ -26,7 +26,7 @@ from torch import Tensor
 
 from .geometry import normalize, sun_vector
 from .heliostat import Heliostat, deformation, facet_frames, sample_surface
-from .raytrace import Optics, _pixel_coefficients, _project, mean_rays, padded_canvas, splat_footprints
+from .raytrace import Optics, _project, central_hits, mean_rays, padded_canvas, splat_footprints
 from .target import Target
 
 FD_STEP = 0.05  # central-difference step of the derivatives (mrad, mrad, mm); the hits are linear
@@ -79,13 +79,13 @@ class LinearisedTrace:
         for key, derivative in self.derivatives.items():
             if key not in tensors:
                 continue
-            change = (tensors[key] - self.at[key])[index] if key != "tracking" else tensors[key] - self.at[key]
+            change = tensors[key] - self.at[key]
             if key == "tracking":
                 moved = moved + torch.einsum("sfpdk,k->sfpd", derivative[:, index], change)
             elif key == "canting":
-                moved = moved + torch.einsum("sfpdk,fk->sfpd", derivative[:, index], change)
+                moved = moved + torch.einsum("sfpdk,fk->sfpd", derivative[:, index], change[index])
             else:
-                local = torch.stack(deformation(change, self.facet_size[index], self.cells_per_side), -1)
+                local = torch.stack(deformation(change[index], self.facet_size[index], self.cells_per_side), -1)
                 moved = moved + torch.einsum("sfpdk,fpk->sfpd", derivative[:, index], local.flatten(1, 2))
         n_sun = moved.shape[0]
         factor = optics.dni * optics.reflectivity
@@ -130,16 +130,9 @@ def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: 
             else:
                 samples = replace(samples, normals=normalize(samples.normals - step * 1e-3 * axes[:, :, local - 1]))
         rays = _project(moved, samples, sun, t64, t64.center, Optics(sun=None, dni=1.0))
-        direction, position = _pixel_coefficients(rays, canvas)
-        t = position[0]["base"] / direction[0]["base"]
-        col = torch.addcmul(position[1]["base"], t, direction[1]["base"])[..., 0]
-        row = torch.addcmul(position[2]["base"], t, direction[2]["base"])[..., 0]
-        power = torch.where((t[..., 0] > 0) & (direction[0]["base"][..., 0] < 0), rays.power, 0.0)
-        central = rays.along[:, :, 0, :]
-        length = central.norm(dim=-1)
+        col, row, power, unit, path = central_hits(rays, canvas)
         shape = (len(sun), n_facets, -1)
-        return (torch.stack((col, row), -1).reshape(*shape, 2), power.reshape(shape), central / length[..., None],
-                t[..., 0] * length)
+        return torch.stack((col, row), -1).reshape(*shape, 2), power.reshape(shape), unit, path
 
     hits, power, unit, path = traced(base)
     mean_unit, mean_path = mean_rays(unit, path, power.reshape(len(sun), -1), 1)

@@ -321,20 +321,27 @@ def _splat_kernel(c: _Rays, target: Target, optics: Optics, n_facets: int) -> Te
     and the canvas is convolved (FFT) with the footprint of the facet's power-weighted mean ray
     (`splat_footprints`). Flux from rays that land outside the canvas is not followed.
     """
-    n_sun, n_points = c.power.shape
-    canvas = padded_canvas(target)
+    n_sun = c.power.shape[0]
+    col, row, power, unit, path = central_hits(c, padded_canvas(target))
+    unit, path = mean_rays(unit, path, power, n_facets)
+    groups = n_sun * n_facets
+    flux = splat_footprints(col.reshape(groups, -1), row.reshape(groups, -1), power.reshape(groups, -1),
+                            unit, path, target, optics)
+    return flux.reshape(n_sun, n_facets, *target.resolution).sum(1)
+
+
+def central_hits(c: _Rays, canvas: Target) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """Where each (sun position, point)'s central ray meets the canvas: column and row (S, P) in its
+    padded pixel coordinates (see `deposit`), power (S, P) (W; 0 for a ray away from the plane), unit
+    direction (S, P, 3) on the target's (normal, right, up) and path length (S, P) (m)."""
     direction, position = _pixel_coefficients(c, canvas)
     t = position[0]["base"] / direction[0]["base"]  # (S, P, 1); the normal axis is not rescaled
     power = torch.where((t > 0) & (direction[0]["base"] < 0), c.power[..., None], 0.0)[..., 0]
     col = torch.addcmul(position[1]["base"], t, direction[1]["base"])[..., 0]
     row = torch.addcmul(position[2]["base"], t, direction[2]["base"])[..., 0]
-    central = c.along[:, :, 0, :]  # (S, P, 3) on (normal, right, up)
+    central = c.along[:, :, 0, :]
     length = central.norm(dim=-1)
-    unit, path = mean_rays(central / length[..., None], t[..., 0] * length, power, n_facets)
-    groups = n_sun * n_facets
-    flux = splat_footprints(col.reshape(groups, -1), row.reshape(groups, -1), power.reshape(groups, -1),
-                            unit, path, target, optics)
-    return flux.reshape(n_sun, n_facets, *target.resolution).sum(1)
+    return col, row, power, central / length[..., None], t[..., 0] * length
 
 
 def padded_canvas(target: Target) -> Target:
