@@ -33,9 +33,9 @@ def cmd_recovery(args) -> None:
     from .evaluate.recovery import recovery, write_recovery
 
     if args.output is None:
-        print(json.dumps(recovery(args.model, args.heliostat, args.dataset), indent=1))
+        print(json.dumps(recovery(args.model, args.heliostat, args.dataset, args.device), indent=1))
     else:
-        write_recovery(args.model, args.heliostat, args.dataset, args.output)
+        write_recovery(args.model, args.heliostat, args.dataset, args.output, args.device)
 
 
 def cmd_surfaces(args) -> None:
@@ -104,7 +104,7 @@ def cmd_train(args) -> None:
     dataset = os.path.splitext(os.path.basename(args.dataset))[0]
     spec = _spec(args, lambda config, model: workflow.train_params(config, dataset, model))
     train_network(spec["network"], spec["settings"], args.dataset, args.output, args.curve, args.curve_figure,
-                  seed=spec["seed"], train_images=spec["train_images"])
+                  seed=spec["seed"], train_images=spec["train_images"], device=spec.get("device", "cpu"))
 
 
 def cmd_diagnose(args) -> None:
@@ -114,7 +114,8 @@ def cmd_diagnose(args) -> None:
     spec = _spec(args, lambda config, _: workflow.diagnose_params(config, dataset))
     figures = {"signatures": args.signatures, "ranking": args.ranking, "residuals": args.residuals,
                "ledger": args.ledger_figure}
-    diagnose_dataset(args.dataset, args.heliostat, spec["effects"], spec["settings"], args.output, figures, args.ledger)
+    diagnose_dataset(args.dataset, args.heliostat, spec["effects"], spec["settings"], args.output, figures, args.ledger,
+                     spec.get("device", "cpu"))
 
 
 def cmd_evaluate(args) -> None:
@@ -122,7 +123,7 @@ def cmd_evaluate(args) -> None:
 
     spec = json.loads(args.spec) if args.spec else {}
     result = evaluate_model(args.model, args.dataset, args.metrics, args.per_image, args.grid, args.psnr,
-                            gan_samples=spec.get("gan_samples", 64))
+                            gan_samples=spec.get("gan_samples", 64), device=spec.get("device", "cpu"))
     for split, m in result["splits"].items():
         logging.info("%s: %s", split, m)
 
@@ -291,6 +292,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--heliostat", required=True, help="surfaces/<heliostat>.h5 the dataset was traced from")
     p.add_argument("--dataset", required=True, help="datasets/<dataset>.h5")
     p.add_argument("--output", help="recovery/<dataset>.json (default: print the JSON)")
+    p.add_argument("--device", default="cpu", choices=("cpu", "cuda", "auto"), help="where the model predicts")
     p.set_defaults(func=cmd_recovery)
 
     p = sub.add_parser("report", help="the self-contained HTML report of an experiment")

@@ -11,7 +11,6 @@ import copy
 from dataclasses import dataclass
 from pathlib import Path
 
-import jsonschema
 import yaml
 
 from .errors import ConfigError
@@ -40,6 +39,8 @@ def validate_config(config: dict, schema_path: str | Path = SCHEMA_PATH, source:
     meaning). PAINT measurement ids given as numbers become strings.
     """
     config = _without_nulls(copy.deepcopy(config))
+    import jsonschema  # here: the commands that take a spec from the Snakefile start without it
+
     schema = yaml.safe_load(Path(schema_path).read_text())
     validator = jsonschema.Draft7Validator(schema)
     errors = sorted(validator.iter_errors(config), key=lambda e: (len(e.absolute_path), list(map(str, e.absolute_path))))
@@ -70,7 +71,7 @@ def _check_device(device: str, source: str) -> None:
                           f"(torch {torch.__version__}); use device: cpu, or auto (CUDA where there is one)")
 
 
-def _describe(error: jsonschema.ValidationError) -> str:
+def _describe(error) -> str:
     """'key.path = value: what is allowed' for one schema error."""
     key = ".".join(str(p) for p in error.absolute_path) or "(top level)"
     rule, expected = error.validator, error.validator_value

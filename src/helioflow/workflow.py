@@ -220,7 +220,8 @@ def train_params(config: dict, dataset: str, model: str) -> dict:
     settings = copy.deepcopy(networks[network] or {})
     if network in PHYSICS_MODELS:
         settings.update(effects=model_effects(config, dataset), heliostat_path=heliostat_path(config, dataset))
-    return {"network": network, "settings": settings, "seed": config["seed"], "train_images": count}
+    return {"network": network, "settings": settings, "seed": config["seed"], "train_images": count,
+            "device": config["device"]}
 
 
 def heliostat_path(config: dict, dataset: str) -> str:
@@ -244,12 +245,13 @@ def diagnose_params(config: dict, dataset: str) -> dict:
     """Parameters of rule `diagnose`: the dataset's model effects and the fit settings
     (config `diagnosis`, defaults DIAGNOSIS_DEFAULTS)."""
     return {"effects": model_effects(config, dataset),
-            "settings": {**DIAGNOSIS_DEFAULTS, **copy.deepcopy(config.get("diagnosis") or {})}}
+            "settings": {**DIAGNOSIS_DEFAULTS, **copy.deepcopy(config.get("diagnosis") or {})},
+            "device": config["device"]}
 
 
 def evaluate_params(config: dict) -> dict:
-    """Parameters of rule `evaluate`."""
-    return copy.deepcopy(config.get("evaluation") or {})
+    """Parameters of rule `evaluate`: config `evaluation` and the device."""
+    return {**copy.deepcopy(config.get("evaluation") or {}), "device": config["device"]}
 
 
 def metrics_paths(config: dict, include_efficiency: bool = False) -> list[str]:

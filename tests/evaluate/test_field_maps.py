@@ -16,6 +16,7 @@ from helioflow.data.hdf5 import read_arrays
 from helioflow.data.surfaces import true_heliostat, write_heliostat
 from helioflow.data.synthetic import trace_dataset
 from helioflow.errors import ConfigError, DataError
+from helioflow.evaluate import field_maps
 from helioflow.evaluate.field_maps import SCHEMA, aim_points, build_scene, compose_field, without_fit
 from helioflow.evaluate.field_metrics import MAP_METRICS, SPOT_METRICS, spot_metrics
 from helioflow.models.registry import train_network
@@ -73,6 +74,17 @@ def composed(tmp_path_factory):
         out / "metrics.json",
     )
     return config, metrics, out, models, datasets
+
+
+def test_the_configured_device_reaches_compose_field(composed, monkeypatch, tmp_path):
+    """The spec's device is the one the field is traced and the models predict on (see
+    tests/test_device.py; answered with the CPU here)."""
+    config, _, _, models, datasets = composed
+    asked = []
+    monkeypatch.setattr(field_maps, "resolve_device", lambda d: asked.append(d) or torch.device("cpu"))
+    compose_field({**compose_field_params(config), "device": "cuda"}, models, datasets, tmp_path / "f.h5",
+                  tmp_path / "f.png", tmp_path / "m.json")
+    assert asked == ["cuda"]
 
 
 def test_three_maps_per_design_point_and_the_measured_spots(composed):

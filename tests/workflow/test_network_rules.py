@@ -30,7 +30,8 @@ def test_parse_model_names():
 
 def test_train_params_hold_only_the_network_section(config):
     p = train_params(config, "sanity_check", "cgan-n50")
-    assert p == {"network": "cgan", "settings": {"steps": 3}, "seed": config["seed"], "train_images": 50}
+    assert p == {"network": "cgan", "settings": {"steps": 3}, "seed": config["seed"], "train_images": 50,
+                 "device": config["device"]}
     config["networks"]["nearest"] = {"steps": 7}
     assert train_params(config, "sanity_check", "cgan") == {**p, "train_images": None}
 

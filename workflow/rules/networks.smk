@@ -61,6 +61,7 @@ rule recovery:
         f"{RESULTS}/recovery/{{dataset}}.json",
     params:
         torch_threads=TORCH_THREADS,
+        device=config["device"],
     log:
         f"{RESULTS}/logs/recovery/{{dataset}}.log",
     benchmark:
@@ -68,7 +69,7 @@ rule recovery:
     threads: TORCH_THREADS
     shell:
         "helioflow --threads {params.torch_threads:q} recovery --model {input.model:q} --heliostat {input.heliostat:q}"
-        " --dataset {input.dataset:q} --output {output:q} > {log:q} 2>&1"
+        " --dataset {input.dataset:q} --device {params.device:q} --output {output:q} > {log:q} 2>&1"
 
 
 rule table:

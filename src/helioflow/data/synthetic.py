@@ -20,6 +20,7 @@ from ..physics.raytrace import trace
 from ..physics.sun import rms_radius
 from ..physics.target import Target
 from .hdf5 import CalibrationDataset, write_dataset
+from ..device import resolve_device
 from .splits import assign_splits
 from .surfaces import read_heliostat
 
@@ -57,13 +58,6 @@ def sun_positions(sun: dict, seed: int) -> tuple[np.ndarray, np.ndarray]:
 def config_hash(spec: dict) -> str:
     """sha256 of the canonical JSON of a rule's parameters (what the output depends on)."""
     return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()
-
-
-def resolve_device(device: str) -> torch.device:
-    """'auto' picks CUDA when it is there; otherwise the named device."""
-    if device == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(device)
 
 
 def trace_dataset(spec: dict, heliostat_path: str | os.PathLike, output_path: str | os.PathLike) -> CalibrationDataset:

@@ -33,8 +33,10 @@ import torch
 from torch import Tensor
 
 from ..data.hdf5 import read_dataset
-from ..errors import DataError
 from ..data.surfaces import read_heliostat
+from ..device import resolve_device
+from ..errors import DataError
+from ..io import write_text_atomic
 from ..models.physics_fit import (
     FitResult,
     FitSettings,
@@ -46,7 +48,6 @@ from ..models.physics_fit import (
 )
 from ..physics.effects import FIT, REGISTRY
 from ..physics.target import centroid
-from ..io import write_text_atomic
 
 log = logging.getLogger(__name__)
 
@@ -322,19 +323,21 @@ def update_ledger(path: str | os.PathLike, dataset_hash: str, effects: dict, err
     return [e for e in entries if e["dataset_hash"] == dataset_hash]
 
 
-def _measurements(ds, index: np.ndarray, scale: float) -> Measurements:
-    return Measurements(torch.as_tensor(ds.images[index]) / scale, torch.as_tensor(ds.azimuth_deg[index]).float(),
-                        torch.as_tensor(ds.elevation_deg[index]).float(), scale)
+def _measurements(ds, index: np.ndarray, scale: float, device: str | torch.device = "cpu") -> Measurements:
+    return Measurements((torch.as_tensor(ds.images[index]) / scale).to(device),
+                        torch.as_tensor(ds.azimuth_deg[index]).float().to(device),
+                        torch.as_tensor(ds.elevation_deg[index]).float().to(device), scale)
 
 
 def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict, output_json, figures: dict,
-                     ledger_path) -> dict:
+                     ledger_path, device: str = "cpu") -> dict:
     """The `diagnose` rule: diagnosis/{dataset}.json and its figures (keys of `figures`:
     signatures, ranking, residuals, ledger).
 
     Args:
         effects: the model's effect list for this dataset.
         settings: fit_images, heldout_images, fit_steps, rounds, cells_per_side, fit_rays, max_effects.
+        device: where the fits run (cpu | cuda | auto).
     """
     from .diagnosis_figures import plot_diagnosis
 
@@ -344,20 +347,21 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     heldout_index = np.concatenate((ds.indices("interpolation"), ds.indices("extrapolation")))
     scale = float(ds.images[train_index].max())
     pick = lambda index, n: index[np.linspace(0, len(index) - 1, min(n, len(index))).round().astype(int)]
-    heliostat = read_heliostat(heliostat_path).ideal().to("cpu")
+    device = resolve_device(device)
+    heliostat = read_heliostat(heliostat_path).ideal().to(device)
     shape = tuple(ds.images.shape[1:])
     fit_scene = dataset_scene(heliostat, ds.attrs, shape, settings["cells_per_side"], settings["fit_rays"], True)
     fit = FitSettings(steps=settings["fit_steps"], rounds=settings["rounds"])
-    diagnosis = Diagnosis(fit_scene, effects, _measurements(ds, pick(train_index, settings["fit_images"]), scale),
-                          _measurements(ds, pick(heldout_index, settings["heldout_images"]), scale), fit,
+    diagnosis = Diagnosis(fit_scene, effects, _measurements(ds, pick(train_index, settings["fit_images"]), scale, device),
+                          _measurements(ds, pick(heldout_index, settings["heldout_images"]), scale, device), fit,
                           settings["max_effects"])
     before, model, ranking, skipped = diagnosis.rank()
     everything = _measurements(ds, np.arange(len(ds.images)), scale)
     with torch.no_grad():
-        pred, lost = fit_scene.simulate(model.effects, model.tensors, everything.azimuth_deg, everything.elevation_deg,
-                                        with_lost=True)
-        pred, lost = pred / scale, lost / scale
-    slant = float(np.linalg.norm(np.subtract(ds.attrs["target_center_m"], heliostat.position.numpy())))
+        pred, lost = fit_scene.simulate(model.effects, model.tensors, everything.azimuth_deg.to(device),
+                                        everything.elevation_deg.to(device), with_lost=True)
+        pred, lost = pred.cpu() / scale, lost.cpu() / scale
+    slant = float(np.linalg.norm(np.subtract(ds.attrs["target_center_m"], heliostat.position.cpu().numpy())))
     sig = signatures(fit_scene, pred, everything.images, slant)
     summary = summarise(sig)
     ledger = update_ledger(ledger_path, str(ds.attrs.get("config_hash", Path(dataset_path).stem)), effects, before)

@@ -109,7 +109,7 @@ def _mean(values: np.ndarray) -> float | None:
 
 
 def evaluate_model(model_path: str | os.PathLike, dataset_path: str | os.PathLike, out_json, out_csv,
-                   out_grid_png, out_psnr_png, gan_samples: int = 64, seed: int = 0) -> dict:
+                   out_grid_png, out_psnr_png, gan_samples: int = 64, seed: int = 0, device: str = "cpu") -> dict:
     """Score a model file on a dataset file; write metrics JSON, per-image CSV and two figures.
 
     Args:
@@ -129,6 +129,7 @@ def evaluate_model(model_path: str | os.PathLike, dataset_path: str | os.PathLik
         out_psnr_png: PSNR against sun azimuth and elevation, coloured by split.
         gan_samples: samples drawn once (seeded) for a model with ``controllable == False``.
         seed: seed of the generator handed to ``model.predict``.
+        device: where the model predicts (cpu | cuda | auto); the metrics are computed on the CPU.
     Returns:
         the JSON's dict.
     Raises:
@@ -137,7 +138,7 @@ def evaluate_model(model_path: str | os.PathLike, dataset_path: str | os.PathLik
     """
     from ..models.registry import load_model  # imported here: keeps `helioflow.evaluate` light
 
-    model, info = load_model(model_path)
+    model, info = load_model(model_path, device)
     ds = read_dataset(dataset_path)
     network = info["network"]
     name = str(ds.attrs.get("dataset", Path(dataset_path).stem))

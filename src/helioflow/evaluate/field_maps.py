@@ -43,7 +43,8 @@ from torch import Tensor
 from ..config import HeliostatSpec
 from ..data.hdf5 import read_dataset, write_arrays
 from ..data.surfaces import true_heliostat
-from ..data.synthetic import config_hash, resolve_device
+from ..data.synthetic import config_hash
+from ..device import resolve_device
 from ..errors import ConfigError, DataError
 from ..models.registry import load_model
 from ..physics.carry import carry_spot, commanded_normal, core_spread, equivalent_sun
@@ -198,7 +199,7 @@ def load_calibration(
         raise DataError(
             f"{dataset_path}: a dataset of heliostat {ds.attrs.get('heliostat')!r}, expected {name!r}"
         )
-    model, info = load_model(model_path)
+    model, info = load_model(model_path, device)
     if Path(str(info.get("meta", {}).get("dataset", ""))).stem != Path(dataset_path).stem:
         raise DataError(
             f"{model_path}: trained on {info.get('meta', {}).get('dataset')!r}, not on {dataset_path}"

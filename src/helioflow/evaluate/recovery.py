@@ -40,12 +40,15 @@ from .evaluation import scored_images
 from .metrics import psnr
 
 
-def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, dataset_path: str | os.PathLike) -> dict:
-    """The comparison described in the module docstring, as a JSON-able dict."""
-    model, info = load_model(model_path)
+def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, dataset_path: str | os.PathLike,
+             device: str = "cpu") -> dict:
+    """The comparison described in the module docstring, as a JSON-able dict; the model predicts
+    on `device` (cpu | cuda | auto), the comparisons are made on the CPU."""
+    model, info = load_model(model_path, device)
     tensors = getattr(getattr(model, "fitted", None), "tensors", None)
     if not tensors:
         raise DataError(f"{model_path}: a {info['network']} model has no fitted heliostat tensors to compare")
+    tensors = {k: v.cpu() for k, v in tensors.items()}
     true = read_heliostat(heliostat_path).to("cpu", torch.float64)
     ds = read_dataset(dataset_path)
     out: dict = {}
@@ -82,17 +85,17 @@ def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, d
     true_tensors = {"tracking": true.tracking_error * 1e3, "canting": true.canting_error * 1e3,
                     "surface": true.control_heights * 1e3}
     model.fitted = replace(model.fitted, effects=effects,
-                           tensors={k: true_tensors[k].to(v) for k, v in tensors.items()})
+                           tensors={k: true_tensors[k].to(model.device, v.dtype) for k, v in tensors.items()})
     out["psnr_db"] = {"fitted": fitted_psnr,
                       "true_heliostat": _split_psnr(model, info, ds, model_path, dataset_path)}
     return out
 
 
 def write_recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike,
-                   dataset_path: str | os.PathLike, output: str | os.PathLike) -> dict:
+                   dataset_path: str | os.PathLike, output: str | os.PathLike, device: str = "cpu") -> dict:
     """Rule `recovery`: the comparison as recovery/<dataset>.json (written whole), the JSON the
     command prints without --output."""
-    result = recovery(model_path, heliostat_path, dataset_path)
+    result = recovery(model_path, heliostat_path, dataset_path, device)
     write_text_atomic(output, json.dumps(result, indent=1) + "\n")
     return result
 

@@ -39,6 +39,11 @@ class TrainingData:
     def __len__(self) -> int:
         return len(self.images)
 
+    def to(self, device: torch.device) -> TrainingData:
+        """The same data on `device`."""
+        return TrainingData(self.images.to(device), self.azimuth_deg.to(device), self.elevation_deg.to(device),
+                            self.scale)
+
 
 def sun_features(azimuth_deg: Tensor, elevation_deg: Tensor) -> Tensor:
     """(N,) sun positions (deg) -> (N, 3) unit vectors towards the sun (ENU), the continuous
@@ -60,6 +65,15 @@ class SpotModel(nn.Module, metaclass=ABCMeta):
     controllable: bool = True
     uses_loop: bool = True  # False: `prepare` does all the fitting and the loop runs no steps
     curve: ClassVar[list[dict[str, float]]] = []  # a model that fits itself in `prepare` puts its curve here
+    device = torch.device("cpu")  # where the model computes (`to_device`)
+
+    def to_device(self, device: torch.device) -> SpotModel:
+        """Move the model to `device` (its parameters, buffers and the tensors it keeps) and compute
+        there from now on: `prepare` and `training_step` get data on it, `predict` takes sun
+        positions on any device and returns images on it. Random draws stay on the CPU
+        generators and move to the device (the same seed, the same numbers on every device)."""
+        self.device = torch.device(device)
+        return self.to(self.device)
 
     def prepare(self, data: TrainingData, checkpoint_path: str | os.PathLike | None = None) -> None:
         """Look at the training data once before training (e.g. keep it, or size the scene). A model

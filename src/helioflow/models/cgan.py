@@ -77,7 +77,7 @@ class ConditionalGAN(SpotModel):
     def training_step(self, batch: dict[str, Tensor], optimizers: dict, generator: torch.Generator) -> dict[str, float]:
         real = batch["images"]
         condition = sun_features(batch["azimuth_deg"], batch["elevation_deg"])
-        z = torch.randn(len(real), self.config.latent, generator=generator)
+        z = torch.randn(len(real), self.config.latent, generator=generator).to(self.device)
         return adversarial_step(self.netG, self.netD, optimizers, real, z, condition, self.config.l1_weight,
                                 self.config.real_label)
 
@@ -86,6 +86,6 @@ class ConditionalGAN(SpotModel):
 
         Differentiable with respect to the positions when called with gradients enabled.
         """
-        condition = sun_features(azimuth_deg, elevation_deg)
+        condition = sun_features(azimuth_deg.to(self.device), elevation_deg.to(self.device))
         z = condition.new_zeros(len(condition), self.config.latent)
         return self.netG(z, condition)

@@ -243,10 +243,10 @@ class DCGAN(SpotModel):
 
     def training_step(self, batch: dict[str, Tensor], optimizers: dict, generator: torch.Generator) -> dict[str, float]:
         real = batch["images"]
-        z = torch.randn(len(real), self.config.latent, generator=generator)
+        z = torch.randn(len(real), self.config.latent, generator=generator).to(self.device)
         return adversarial_step(self.netG, self.netD, optimizers, real, z, real_label=self.config.real_label)
 
     def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor, generator: torch.Generator) -> Tensor:
         """N samples (N, H, W) in [0, 1], N = len(azimuth_deg); the positions are ignored."""
-        z = torch.randn(len(azimuth_deg), self.config.latent, generator=generator)
+        z = torch.randn(len(azimuth_deg), self.config.latent, generator=generator).to(self.device)
         return self.netG(z)

@@ -39,7 +39,12 @@ class Nearest(SpotModel):
         return {"images": self.images, "directions": self.directions}
 
     def set_extra_state(self, state: dict) -> None:
-        self.images, self.directions = state["images"], state["directions"]
+        self.images, self.directions = state["images"].to(self.device), state["directions"].to(self.device)
+
+    def to_device(self, device: torch.device) -> Nearest:
+        super().to_device(device)
+        self.images, self.directions = self.images.to(self.device), self.directions.to(self.device)
+        return self
 
     def configure_optimizers(self) -> dict:
         return {}
@@ -48,5 +53,5 @@ class Nearest(SpotModel):
         return {}
 
     def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor, generator: torch.Generator) -> Tensor:
-        cosines = sun_features(azimuth_deg, elevation_deg) @ self.directions.T  # (N, M)
+        cosines = sun_features(azimuth_deg.to(self.device), elevation_deg.to(self.device)) @ self.directions.T  # (N, M)
         return self.images[cosines.argmax(dim=1)]

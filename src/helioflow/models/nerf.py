@@ -312,7 +312,7 @@ class SpotNeRF(SpotModel):
     def views(self, azimuth_deg: Tensor, elevation_deg: Tensor) -> dict[str, Tensor]:
         """Per sun position: rotation R (N, 3, 3), viewing direction d (N, 3), sun direction in
         the heliostat frame (N, 3), focusing map M (N, 2, 2) and its determinant (N,)."""
-        sun = sun_features(azimuth_deg.float(), elevation_deg.float()).to(self.beam.device)
+        sun = sun_features(azimuth_deg.float().to(self.device), elevation_deg.float().to(self.device))
         rotation = heliostat_rotation(self.config.mount, sun, self.beam)
         direction = camera_direction(rotation, self.beam)
         sun_h = (sun[:, None, :] @ rotation)[:, 0]
@@ -360,13 +360,13 @@ class SpotNeRF(SpotModel):
                       generator: torch.Generator) -> dict[str, float]:
         images = batch["images"]
         n_images, n_pixels = images.shape[0], images.shape[1] * images.shape[2]
-        flat = torch.randint(0, n_images * n_pixels, (self.config.rays,), generator=generator)
+        flat = torch.randint(0, n_images * n_pixels, (self.config.rays,), generator=generator).to(self.device)
         image_index, pixel_index = flat // n_pixels, flat % n_pixels
         optimizer = optimizers["nerf"]
         for group in optimizer.param_groups:
             group["lr"] = self.learning_rate(int(self.steps_done))
         views = self.views(batch["azimuth_deg"], batch["elevation_deg"])
-        target = images.reshape(n_images, n_pixels)[image_index, pixel_index].to(self.beam.device)
+        target = images.reshape(n_images, n_pixels)[image_index, pixel_index]
         loss = F.mse_loss(self.render(views, image_index, pixel_index), target)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
@@ -381,8 +381,8 @@ class SpotNeRF(SpotModel):
         with torch.no_grad():
             views = self.views(azimuth_deg, elevation_deg)
             total = len(azimuth_deg) * n_pixels
-            out = torch.empty(total, device=self.beam.device)
+            out = torch.empty(total, device=self.device)
             for start in range(0, total, self.config.chunk):
-                flat = torch.arange(start, min(start + self.config.chunk, total), device=self.beam.device)
+                flat = torch.arange(start, min(start + self.config.chunk, total), device=self.device)
                 out[flat] = self.render(views, flat // n_pixels, flat % n_pixels)
         return out.reshape(len(azimuth_deg), rows, cols)

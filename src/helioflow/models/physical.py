@@ -136,7 +136,7 @@ class RaytraceModel(SpotModel):
     def prepare(self, data: TrainingData, checkpoint_path: str | os.PathLike | None = None) -> None:
         """Fit the model's parameters to (a spread subset of) the training images; a fit stopped
         midway resumes from `checkpoint_path` (physics_fit.FitCheckpoint)."""
-        self.heliostat = read_heliostat(self.config.heliostat_path).ideal().to("cpu")
+        self.heliostat = read_heliostat(self.config.heliostat_path).ideal().to(self.device)
         self.scale = data.scale
         n = len(data)
         index = torch.linspace(0, n - 1, min(n, self.config.fit_images)).round().long()
@@ -151,6 +151,14 @@ class RaytraceModel(SpotModel):
                                   checkpoint=checkpoint_path)
         self.curve = [{"step": i, "loss": v} for i, v in enumerate(self.fitted.history)]
 
+    def to_device(self, device: torch.device) -> RaytraceModel:
+        """Also moves the design heliostat and the fitted tensors (plain attributes, not buffers)."""
+        super().to_device(device)
+        if self.heliostat is not None:
+            self.heliostat = self.heliostat.to(self.device, self.heliostat.facet_size.dtype)
+        self.fitted.tensors = {k: v.to(self.device) for k, v in self.fitted.tensors.items()}
+        return self
+
     def get_extra_state(self) -> dict:
         h = self.heliostat
         return {"heliostat": None if h is None else {k: v for k, v in vars(h).items()},
@@ -161,6 +169,7 @@ class RaytraceModel(SpotModel):
         self.heliostat = None if state["heliostat"] is None else Heliostat(**state["heliostat"])
         self.fitted = FitResult(state["effects"], state["tensors"], fitted=state["fitted"])
         self.scale = state["scale"]
+        self.to_device(self.device)
 
     def configure_optimizers(self) -> dict:
         return {}
@@ -171,8 +180,8 @@ class RaytraceModel(SpotModel):
     def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor, generator: torch.Generator) -> Tensor:
         """(N,) sun positions (deg) -> (N, H, W) images divided by the training scale (each by its
         own peak first for a per-image normalised dataset)."""
-        images = self.scene().simulate(self.fitted.effects, self.fitted.tensors, azimuth_deg.float(),
-                                       elevation_deg.float(), seed=1)
+        images = self.scene().simulate(self.fitted.effects, self.fitted.tensors, azimuth_deg.float().to(self.device),
+                                       elevation_deg.float().to(self.device), seed=1)
         if self.config.per_image_normalised:
             images = images / images.amax((-2, -1), keepdim=True).clamp_min(1e-30)
         return images / self.scale

@@ -221,8 +221,9 @@ def dataset_scene(heliostat: Heliostat, attrs: dict, image_shape: tuple[int, int
     a fit then widens the slope error to cover it. A sharp model (point sun, no slope error: no
     kernel) is traced with bilinear rays instead (Scene.simulate): the dataset's own when predicting.
     """
-    target = Target(torch.tensor(attrs["target_center_m"], dtype=torch.float32),
-                    torch.tensor(attrs["target_normal"], dtype=torch.float32),
+    device = heliostat.facet_size.device
+    target = Target(torch.tensor(attrs["target_center_m"], dtype=torch.float32, device=device),
+                    torch.tensor(attrs["target_normal"], dtype=torch.float32, device=device),
                     float(attrs["target_size_m"][0]), float(attrs["target_size_m"][1]), tuple(image_shape))
     trace_settings = attrs.get("trace") or {}
     dni = float(attrs["dni_w_m2"])
@@ -290,18 +291,19 @@ def initial_tensors(effects: dict, heliostat: Heliostat) -> tuple[dict[str, Tens
     """(tensors, masks) for the heliostat tensors an effect list fits: start values (given values
     for tracking parameters, zeros otherwise) and which entries are free (bool, same shape)."""
     tensors, masks = {}, {}
+    device = heliostat.facet_size.device
     tracking = effects.get("tracking")
     if tracking and any(v == FIT for v in tracking.values()):
         names = _tracking_names()
         values = [tracking.get(n, 0.0) for n in names]
-        tensors["tracking"] = torch.tensor([0.0 if v == FIT else float(v) for v in values])
-        masks["tracking"] = torch.tensor([tracking.get(n) == FIT for n in names])
+        tensors["tracking"] = torch.tensor([0.0 if v == FIT else float(v) for v in values], device=device)
+        masks["tracking"] = torch.tensor([tracking.get(n) == FIT for n in names], device=device)
     if (effects.get("canting") or {}).get("facet_tilts_mrad") == FIT:
-        tensors["canting"] = torch.zeros(heliostat.n_facets, 2)
-        masks["canting"] = torch.ones(heliostat.n_facets, 2, dtype=torch.bool)
+        tensors["canting"] = torch.zeros(heliostat.n_facets, 2, device=device)
+        masks["canting"] = torch.ones(heliostat.n_facets, 2, dtype=torch.bool, device=device)
     if (effects.get("surface") or {}).get("control_heights_mm") == FIT:
-        tensors["surface"] = torch.zeros(heliostat.control_heights.shape)
-        masks["surface"] = torch.ones(heliostat.control_heights.shape, dtype=torch.bool)
+        tensors["surface"] = torch.zeros(heliostat.control_heights.shape, device=device)
+        masks["surface"] = torch.ones(heliostat.control_heights.shape, dtype=torch.bool, device=device)
     return tensors, masks
 
 
@@ -377,6 +379,7 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
     history: list[float] = []
     if resume.saved is not None:
         tensors, effects, history = (resume.saved[k] for k in ("tensors", "effects", "history"))
+        tensors = {k: v.to(data.images.device) for k, v in tensors.items()}  # saved on the CPU
 
     def saved(tensors: dict) -> None:
         """A stage ended with `tensors`: keep the state for a resumed fit."""
@@ -498,7 +501,7 @@ class _Fitter:
         shape = self.settings.loss == "shape"
         traced = self.scene.simulate(self._unit_linear(effects), tensors, self.data.azimuth_deg,
                                      self.data.elevation_deg, with_lost=shape, facets=facets)
-        images, lost = traced if shape else (traced, torch.zeros(len(traced)))
+        images, lost = traced if shape else (traced, traced.new_zeros(len(traced)))
         return images / self.data.scale, lost / self.data.scale
 
     def predict(self, effects: dict, tensors: dict) -> Tensor:
@@ -608,7 +611,7 @@ class _Fitter:
             tried.add(facet)
             if not any(masks[k][facet].any() for k in own):
                 continue  # nothing of this facet is fitted
-            trial = _flattened(tensors, torch.tensor([facet]))
+            trial = _flattened(tensors, torch.tensor([facet], device=self.target.device))
             pinned = {k: m.clone() for k, m in masks.items()}
             for k in own:
                 pinned[k][facet] = False
@@ -627,7 +630,7 @@ class _Fitter:
         the facets in proportion to their flux there."""
         with torch.no_grad():
             residual = (self.predict(effects, tensors) - self.target) ** 2
-            parts = torch.stack([self.traced(effects, tensors, torch.tensor([f]))[0]
+            parts = torch.stack([self.traced(effects, tensors, torch.tensor([f], device=self.target.device))[0]
                                  for f in range(self.scene.heliostat.n_facets)])
             return (residual * parts / parts.sum(0).clamp_min(1e-30)).sum((1, 2, 3))
 
@@ -661,7 +664,7 @@ class _Fitter:
                 columns.append((moved[0] - moved[1]) / (2.0 * FD_STEPS[k]))
             jacobian = torch.stack(columns, 1)
             normal = jacobian.T @ jacobian
-            damping = 1e-9 * normal.diagonal().mean() * torch.eye(len(free), dtype=normal.dtype)
+            damping = 1e-9 * normal.diagonal().mean() * torch.eye(len(free), dtype=normal.dtype, device=normal.device)
             step = -torch.linalg.solve(normal + damping, jacobian.T @ r)
             for fraction in (1.0, 0.5, 0.25, 0.125):
                 trial = {k: v.clone() for k, v in current.items()}
@@ -689,7 +692,7 @@ class _Fitter:
         if any(p in OFFSETS for p in self.linear):
             a, b = torch.linalg.lstsq(torch.stack((x, torch.ones_like(x)), 1), y[:, None]).solution[:, 0]
         else:
-            a, b = (x @ y) / (x @ x).clamp_min(1e-30), torch.zeros((), dtype=x.dtype)
+            a, b = (x @ y) / (x @ x).clamp_min(1e-30), x.new_zeros(())
         return a.float(), b.float()
 
     def with_linear(self, effects: dict, tensors: dict) -> dict:

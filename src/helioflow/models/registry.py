@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from ..data.hdf5 import CalibrationDataset, read_dataset
+from ..device import resolve_device
 from ..errors import ConfigError, DataError
 from ..io import load_torch, save_torch_atomic
 from .base import SpotModel, TrainingData
@@ -100,19 +101,20 @@ def dataset_geometry(network: str, attrs: dict) -> dict:
 
 def train_network(network: str, settings: dict, dataset_path: str | os.PathLike, model_path: str | os.PathLike,
                   curve_csv: str | os.PathLike, curve_png: str | os.PathLike, seed: int,
-                  train_images: int | None = None, progress: bool = True) -> SpotModel:
+                  train_images: int | None = None, progress: bool = True, device: str = "cpu") -> SpotModel:
     """The `train` rule: fit one network on a dataset's train split and write the model file.
 
     The checkpoints `<model_path>.ckpt` (the training loop's) and `<model_path>.fit.ckpt` (the fit of
     a physics model, after each stage) let an interrupted run resume; they are removed once the model
-    file is written.
+    file is written. The model trains on `device` (cpu | cuda | auto); its file loads on any device.
     """
     ds = read_dataset(dataset_path)
     loop, config = split_settings(network, {**dataset_geometry(network, ds.attrs), **settings}, seed)
-    data = training_data(ds, dataset_path, train_images, seed)
+    device = resolve_device(device)
+    data = training_data(ds, dataset_path, train_images, seed).to(device)
     torch.manual_seed(seed)
     _, model_cls = network_classes(network)
-    model = model_cls(config, tuple(data.images.shape[1:]))
+    model = model_cls(config, tuple(data.images.shape[1:])).to_device(device)
     fit_checkpoint = Path(str(model_path) + ".fit.ckpt")
     model.prepare(data, fit_checkpoint)
     checkpoint = Path(str(model_path) + ".ckpt")
@@ -134,13 +136,14 @@ def save_model(path, model: SpotModel, network: str, config, scale: float, meta:
                              "meta": meta})
 
 
-def load_model(path: str | os.PathLike) -> tuple[SpotModel, dict]:
-    """(model in eval mode, file info) from a model file; DataError names the file when it is not one."""
+def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> tuple[SpotModel, dict]:
+    """(model in eval mode on `device` (cpu | cuda | auto), file info) from a model file; DataError
+    names the file when it is not one."""
     info = load_torch(path, "a helioflow model file")
     if info.get("format") != MODEL_FORMAT:
         raise DataError(f"{path}: not a helioflow model file (expected format {MODEL_FORMAT})")
     config_cls, model_cls = network_classes(info["network"])
     model = model_cls(config_cls(**info["config"]), tuple(info["image_shape"]))
     model.load_state_dict(info["state"])
-    model.eval()
+    model.to_device(resolve_device(device)).eval()
     return model, info

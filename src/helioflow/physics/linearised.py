@@ -90,7 +90,7 @@ class LinearisedTrace:
         n_sun = moved.shape[0]
         factor = optics.dni * optics.reflectivity
         if optics.transmittance is not None:
-            factor = factor * optics.transmittance(torch.tensor(self.distance, dtype=moved.dtype))
+            factor = factor * optics.transmittance(torch.tensor(self.distance, dtype=moved.dtype, device=moved.device))
         power = (self.power[:, index] * factor).reshape(n_sun, -1)
         moved = moved.reshape(n_sun, -1, 2)
         flux = splat_footprints(moved[..., 0], moved[..., 1], power, self.unit, self.path, self.target,
@@ -110,9 +110,9 @@ def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: 
     at = {k: v.detach().to("cpu", torch.float64) for k, v in at.items()}
     base = {"tracking": h.tracking_error * 1e3, "canting": h.canting_error * 1e3, "surface": h.control_heights * 1e3}
     base.update(at)
-    t64 = replace(target, center=target.center.to(torch.float64), normal=target.normal.to(torch.float64))
+    t64 = replace(target, center=target.center.to("cpu", torch.float64), normal=target.normal.to("cpu", torch.float64))
     canvas = padded_canvas(t64)
-    sun = sun_vector(azimuth.to(torch.float64), elevation.to(torch.float64))
+    sun = sun_vector(azimuth.to("cpu", torch.float64), elevation.to("cpu", torch.float64))
     n_facets, g = h.n_facets, cells_per_side
 
     def traced(values: dict, local: int | None = None, step: float = 0.0) -> tuple[Tensor, ...]:
