@@ -224,6 +224,12 @@ def train_params(config: dict, dataset: str, model: str) -> dict:
             "device": config["device"]}
 
 
+def train_threads(config: dict, model: str) -> int:
+    """torch CPU threads of rule `train`: config torch_threads, one for the nearest baseline (a copy
+    of the training images: a short job that -j2 runs beside another)."""
+    return 1 if parse_model(model)[0] == "nearest" else config["torch_threads"]
+
+
 def heliostat_path(config: dict, dataset: str) -> str:
     """surfaces/<heliostat>.h5 of a dataset's heliostat."""
     return f"{results_dir(config)}/surfaces/{dataset_heliostat(config, dataset)}.h5"

@@ -31,6 +31,7 @@ from helioflow.workflow import (
     traced_datasets,
     train_inputs,
     train_params,
+    train_threads,
 )
 
 try:
@@ -43,9 +44,12 @@ except HelioflowError as exc:
     sys.exit(f"helioflow: {exc}")
 
 RESULTS = results_dir(config)
-# torch CPU threads of every job that computes: fixed by config, not by `-j`, so that the same config
-# gives the same results however many jobs run at once
+# torch CPU threads per job, fixed by config, not by `-j`, so that the same config gives the same
+# results however many jobs run at once: torch_threads for the jobs that compute (trace, the fits,
+# the networks' training, diagnose, compose_field), one for the short ones (surfaces, plots, scoring,
+# the nearest baseline), which -j2 then runs two at a time
 TORCH_THREADS = config["torch_threads"]
+SHORT_JOB_THREADS = 1
 
 
 wildcard_constraints:

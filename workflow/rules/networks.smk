@@ -7,13 +7,13 @@ rule train:
         curve=f"{RESULTS}/models/{{dataset}}/{{model}}_curve.csv",
         curve_figure=f"{RESULTS}/models/{{dataset}}/{{model}}_curve.png",
     params:
-        torch_threads=TORCH_THREADS,
+        torch_threads=lambda wc: train_threads(config, wc.model),
         spec=lambda wc: json.dumps(train_params(config, wc.dataset, wc.model)),
     log:
         f"{RESULTS}/logs/train/{{dataset}}/{{model}}.log",
     benchmark:
         f"{RESULTS}/benchmarks/train/{{dataset}}/{{model}}.tsv"
-    threads: TORCH_THREADS
+    threads: lambda wc: train_threads(config, wc.model)
     shell:
         "helioflow --threads {params.torch_threads:q} train --spec {params.spec:q} --dataset {input.dataset:q}"
         " --output {output.model:q} --curve {output.curve:q} --curve-figure {output.curve_figure:q} > {log:q} 2>&1"
@@ -38,13 +38,13 @@ rule evaluate:
             category="Networks",
         ),
     params:
-        torch_threads=TORCH_THREADS,
+        torch_threads=SHORT_JOB_THREADS,
         spec=lambda wc: json.dumps(evaluate_params(config)),
     log:
         f"{RESULTS}/logs/evaluate/{{dataset}}/{{model}}.log",
     benchmark:
         f"{RESULTS}/benchmarks/evaluate/{{dataset}}/{{model}}.tsv"
-    threads: TORCH_THREADS
+    threads: SHORT_JOB_THREADS
     shell:
         "helioflow --threads {params.torch_threads:q} evaluate --spec {params.spec:q} --model {input.model:q}"
         " --dataset {input.dataset:q} --metrics {output.metrics:q} --per-image {output.per_image:q}"
@@ -60,13 +60,13 @@ rule recovery:
     output:
         f"{RESULTS}/recovery/{{dataset}}.json",
     params:
-        torch_threads=TORCH_THREADS,
+        torch_threads=SHORT_JOB_THREADS,
         device=config["device"],
     log:
         f"{RESULTS}/logs/recovery/{{dataset}}.log",
     benchmark:
         f"{RESULTS}/benchmarks/recovery/{{dataset}}.tsv"
-    threads: TORCH_THREADS
+    threads: SHORT_JOB_THREADS
     shell:
         "helioflow --threads {params.torch_threads:q} recovery --model {input.model:q} --heliostat {input.heliostat:q}"
         " --dataset {input.dataset:q} --device {params.device:q} --output {output:q} > {log:q} 2>&1"
