@@ -87,3 +87,13 @@ def test_by_hand_steps_match_what_the_pipeline_would_trace(tmp_path):
     ds = read_dataset(dataset)
     assert ds.images.shape == (6, 16, 16)
     assert ds.attrs["config_hash"] == config_hash(trace_params(load_config(TINY), "scan"))
+
+
+def test_help_answers_without_loading_torch():
+    """`helioflow --help` and each subcommand's help come from the parser alone: no torch import
+    (which takes seconds), so they answer at once."""
+    code = ("import sys; from helioflow.cli import parser; p = parser(); p.format_help(); "
+            "[a.choices[c].format_help() for a in p._subparsers._group_actions for c in a.choices]; "
+            "print('torch' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.stdout.strip() == "False", proc.stderr

@@ -14,10 +14,7 @@ import os
 import sys
 from collections import Counter
 
-import torch
-
 from . import workflow
-from .config import HeliostatSpec, load_config
 from .errors import HelioflowError
 
 
@@ -26,6 +23,8 @@ def _spec(args, params) -> dict:
         return json.loads(args.spec)
     if args.config is None or args.name is None:
         raise HelioflowError("give --spec JSON, or --config FILE and --name NAME")
+    from .config import load_config
+
     return params(workflow.expand_config(load_config(args.config)), args.name)
 
 
@@ -39,6 +38,7 @@ def cmd_recovery(args) -> None:
 
 
 def cmd_surfaces(args) -> None:
+    from .config import HeliostatSpec
     from .data.surfaces import true_heliostat, write_heliostat
 
     spec = HeliostatSpec.from_config(*_split_name(_spec(args, workflow.surfaces_params)))
@@ -107,15 +107,18 @@ def cmd_train(args) -> None:
                   seed=spec["seed"], train_images=spec["train_images"], device=spec.get("device", "cpu"))
 
 
+DIAGNOSIS_FIGURES = ("signatures", "ranking", "residuals", "ledger-figure")
+
+
 def cmd_diagnose(args) -> None:
     from .evaluate.diagnose import diagnose_dataset
 
-    dataset = os.path.splitext(os.path.basename(args.dataset))[0]
-    spec = _spec(args, lambda config, _: workflow.diagnose_params(config, dataset))
-    figures = {"signatures": args.signatures, "ranking": args.ranking, "residuals": args.residuals,
-               "ledger": args.ledger_figure}
-    diagnose_dataset(args.dataset, args.heliostat, spec["effects"], spec["settings"], args.output, figures, args.ledger,
-                     spec.get("device", "cpu"))
+    spec = _spec(args, workflow.diagnose_params)  # --name: the dataset's name in the config
+    stem = os.path.splitext(args.output)[0]
+    figures = {name.removesuffix("-figure"): getattr(args, name.replace("-", "_")) or f"{stem}_{name}.png"
+               for name in DIAGNOSIS_FIGURES}
+    diagnose_dataset(args.dataset, args.heliostat, spec["effects"], spec["settings"], args.output, figures,
+                     args.ledger or f"{stem}_ledger.json", spec.get("device", "cpu"))
 
 
 def cmd_evaluate(args) -> None:
@@ -129,6 +132,7 @@ def cmd_evaluate(args) -> None:
 
 
 def cmd_compose_field(args) -> None:
+    from .config import load_config
     from .evaluate.field_maps import compose_field
 
     if args.spec is not None:
@@ -180,9 +184,12 @@ def cmd_report(args) -> None:
 
 
 def _with_spec(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--spec", help="the rule's parameters as JSON (what the Snakefile passes)")
-    p.add_argument("--config", help="by hand: a config.yaml to take the parameters from")
-    p.add_argument("--name", help="by hand: the heliostat / dataset / model name in that config")
+    """The parameters' sources, after a subcommand's own options: a config file and a name (by hand),
+    or the rule's JSON spec (what the Snakefile passes)."""
+    p.add_argument("--config", help="a config.yaml to take the parameters from")
+    p.add_argument("--name", help="the heliostat / dataset / model name in that config")
+    p.add_argument("--spec", help="instead of --config and --name: the rule's parameters as JSON (what the "
+                                  "Snakefile passes)")
 
 
 def parser() -> argparse.ArgumentParser:
@@ -192,18 +199,17 @@ def parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="step", required=True)
 
     p = sub.add_parser("surfaces", help="write a heliostat's true geometry (ideal + seeded errors)")
-    _with_spec(p)
     p.add_argument("--output", required=True, help="surfaces/{heliostat}.h5")
+    _with_spec(p)
     p.set_defaults(func=cmd_surfaces)
 
     p = sub.add_parser("trace", help="raytrace a calibration dataset")
-    _with_spec(p)
     p.add_argument("--heliostat", required=True, help="surfaces/{heliostat}.h5 from `surfaces`")
     p.add_argument("--output", required=True, help="datasets/{dataset}.h5")
+    _with_spec(p)
     p.set_defaults(func=cmd_trace)
 
     p = sub.add_parser("import-paint", help="import a PAINT heliostat: dataset and/or ideal geometry")
-    _with_spec(p)
     p.add_argument("--paint-dir", help="by hand: the PAINT directory (tower-measurements.json, heliostat folders)")
     p.add_argument("--heliostat", help="by hand: the heliostat folder, e.g. AA39")
     p.add_argument("--resolution", type=int, nargs=2, default=[64, 64], metavar=("ROWS", "COLS"),
@@ -214,6 +220,7 @@ def parser() -> argparse.ArgumentParser:
                    help="by hand: nominal DNI of the dataset's attribute dni_w_m2 (default 1000)")
     p.add_argument("--output", help="datasets/{dataset}.h5")
     p.add_argument("--heliostat-output", help="surfaces/{heliostat}.h5: the ideal heliostat geometry")
+    _with_spec(p)
     p.set_defaults(func=cmd_import_paint)
 
     p = sub.add_parser("paint-centroids", help="measured vs ideal spot centroid (mrad) per PAINT image")
@@ -223,43 +230,43 @@ def parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_paint_centroids)
 
     p = sub.add_parser("train", help="train a network on a dataset's train split")
-    _with_spec(p)
     p.add_argument("--dataset", required=True, help="datasets/{dataset}.h5")
     p.add_argument("--output", required=True, help="models/{dataset}/{model}.pt")
     p.add_argument("--curve", required=True, help="training curve CSV")
     p.add_argument("--curve-figure", required=True, help="training curve PNG")
+    _with_spec(p)
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("diagnose", help="which physical effect the model lacks, from a dataset's measurements")
-    _with_spec(p)
     p.add_argument("--dataset", required=True, help="datasets/{dataset}.h5")
     p.add_argument("--heliostat", required=True, help="surfaces/{heliostat}.h5 (its design geometry is traced)")
     p.add_argument("--output", required=True, help="diagnosis/{dataset}.json")
-    p.add_argument("--ledger", required=True, help="the error ledger JSON kept across runs")
-    for name in ("signatures", "ranking", "residuals", "ledger-figure"):
-        p.add_argument(f"--{name}", required=True, help=f"{name} figure (PNG)")
+    p.add_argument("--ledger", help="the error ledger JSON kept across runs (default: <output>_ledger.json)")
+    for name in DIAGNOSIS_FIGURES:
+        p.add_argument(f"--{name}", help=f"{name} figure (default: <output>_{name}.png)")
+    _with_spec(p)
     p.set_defaults(func=cmd_diagnose)
 
     p = sub.add_parser("evaluate", help="score a model on every split of a dataset")
-    p.add_argument("--spec", help="evaluation settings as JSON, e.g. '{\"gan_samples\": 64}'")
-    p.add_argument("--model", required=True)
-    p.add_argument("--dataset", required=True)
+    p.add_argument("--model", required=True, help="models/<dataset>/<model>.pt")
+    p.add_argument("--dataset", required=True, help="datasets/<dataset>.h5")
     p.add_argument("--metrics", required=True, help="JSON of the scores per split")
     p.add_argument("--per-image", required=True, help="CSV of the scores per image")
     p.add_argument("--grid", required=True, help="PNG: measured / predicted / difference")
     p.add_argument("--psnr", required=True, help="PNG: PSNR against sun position")
+    p.add_argument("--spec", help="settings as JSON, e.g. '{\"gan_samples\": 64, \"device\": \"cuda\"}'")
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("compose-field", help="truth, ideal and hybrid flux maps of the field on the receiver")
-    p.add_argument("--spec", help="the rule's parameters as JSON (what the Snakefile passes)")
-    p.add_argument("--config", help="by hand: a config.yaml with a field section")
+    p.add_argument("--flux", required=True, help="field/flux.h5")
+    p.add_argument("--figure", required=True, help="field/flux.png")
+    p.add_argument("--metrics", required=True, help="field/metrics.json")
+    p.add_argument("--config", help="a config.yaml with a field section")
     p.add_argument("--models", nargs="*", help="models/<heliostat>/<network>.pt of the measured heliostats "
                    "(default with --config: under results/<experiment>/)")
     p.add_argument("--datasets", nargs="*",
                    help="datasets/<heliostat>.h5 of the measured heliostats, in the same order")
-    p.add_argument("--flux", required=True, help="field/flux.h5")
-    p.add_argument("--figure", required=True, help="field/flux.png")
-    p.add_argument("--metrics", required=True, help="field/metrics.json")
+    p.add_argument("--spec", help="instead of --config: the rule's parameters as JSON (what the Snakefile passes)")
     p.set_defaults(func=cmd_compose_field)
 
     p = sub.add_parser("table", help="Table 1 from metrics files")
@@ -309,8 +316,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    torch.set_num_threads(args.threads)
     try:
+        import torch  # here, not at the top: `helioflow --help` answers without loading torch
+
+        torch.set_num_threads(args.threads)
         args.func(args)
     except (HelioflowError, json.JSONDecodeError) as exc:
         print(f"helioflow {args.step}: error: {exc}", file=sys.stderr)
