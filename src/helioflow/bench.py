@@ -1,14 +1,18 @@
 """Benchmarks that print numbers: `python -m helioflow.bench raytrace`, `... bench field` or `... bench fit`.
 
 raytrace: one 2 m x 2 m deformed heliostat 63 m from a 64 x 64 target (the sanity_check scene:
-Buie sun CSR 0.1, slope error 0.5 mrad), one sun position.
-  - bilinear throughput (rays/s) and peak memory at several ray counts, each measured in a fresh
-    process (peak RSS, beside the RSS after imports), inference (no autograd);
-  - time to reach PSNR 40 dB against a 10^8-ray bilinear reference image, for bilinear
-    (doubling the rays) and kernel splatting (refining the surface grid); both in this process,
-    so their ratio is measured under the same load.
+Buie sun CSR 0.1, slope error 0.5 mrad).
+  - bilinear throughput (rays/s) and peak memory at several ray counts, one sun position, each
+    measured in a fresh process (peak RSS, beside the RSS after imports), inference (no autograd).
+    Ray sampling: every ray reads its sun and slope deviations from a pool of exact samples at
+    seeded random offsets (counted in the rates); the pool itself is drawn once per sun shape and
+    slope error and reused by every later trace (its time is printed beside, not in the rates);
+  - time to reach PSNR 40 dB against a 10^8-ray bilinear reference image per sun position, for
+    bilinear (growing the rays) and kernel splatting (refining the surface grid), for one sun
+    position and for a batch of 16 different ones traced at once (as datasets are traced); all in
+    this process, so their ratios are measured under the same load.
 
-field: a flux map of 100, 300 and 1000 heliostats (radially staggered, north of a 60 m tower, each
+field: a flux map of 100, 300 and 1000 heliostats (`--sizes`) (radially staggered, north of a 60 m tower, each
 2 x 2 facets of 1.6 m x 1.25 m canted at its slant range, with its own seeded surface, canting and
 tracking errors) on an 8 m x 8 m receiver at 128 x 128, Buie sun CSR 0.1, slope error 1.5 mrad,
 clear-day attenuation, shading and blocking; one sun position. Each field in a fresh process:
@@ -40,20 +44,22 @@ from .data.surfaces import true_heliostat
 from .physics.effects import resolve
 from .physics.field import FieldHeliostats, field_flux, flat_receiver
 from .physics.layout import min_spacing, radial_staggered
-from .physics.raytrace import trace
+from .physics.raytrace import POOL_SIZE, sample_pool, trace
 from .physics.target import Target
 
 SCENE_HELIOSTAT = HeliostatSpec("bench", (0.0, 60.0, 0.0), "az_el", 1, 1, 2.0, 2.0, 0.0, None, None, 6, 0.5, 1.0, 0.0, 1)
 SCENE_EFFECTS = {"sunshape": {"kind": "buie", "csr": 0.1}, "slope_error": {"sigma_mrad": 0.5}, "tracking": {},
                  "surface": {}}
-SUN_DEG = (10.0, 40.0)
+# 16 sun positions (azimuth, elevation deg) over the calibration sky; the first is the one-position scene's
+SUN_DEG = [(10.0, 40.0)] + [(az, el) for el in (20.0, 45.0, 70.0) for az in (-75.0, -40.0, 0.0, 40.0, 75.0)]
 
 
-def scene():
-    """(heliostat float32, optics, target, azimuth (1,), elevation (1,)) of the benchmark."""
+def scene(batch: int = 1):
+    """(heliostat float32, optics, target, azimuth (batch,), elevation (batch,)) of the benchmark: the
+    first `batch` sun positions of SUN_DEG (rad)."""
     physics = resolve(SCENE_EFFECTS, true_heliostat(SCENE_HELIOSTAT), dni=1000.0)
     target = Target.facing([0.0, 0.0, 20.0], [0.0, 60.0, 0.0], 3.8, 3.8, (64, 64))
-    az, el = (torch.tensor([math.radians(a)]) for a in SUN_DEG)
+    az, el = (torch.tensor([math.radians(p[k]) for p in SUN_DEG[:batch]]) for k in (0, 1))
     return physics.heliostat.to("cpu"), physics.optics, target, az, el
 
 
@@ -65,12 +71,12 @@ def psnr(image: torch.Tensor, reference: torch.Tensor) -> float:
 
 
 def _timed(batch: int = 1, **kwargs) -> tuple[torch.Tensor, float]:
-    """(batch, H, W) images of the scene's sun position traced `batch` times at once, and the
-    wall time per image (s)."""
-    heliostat, optics, target, az, el = scene()
+    """(batch, H, W) images at the first `batch` sun positions traced at once, and the wall time per
+    image (s)."""
+    heliostat, optics, target, az, el = scene(batch)
     start = time.perf_counter()
     with torch.no_grad():
-        images = trace(heliostat, target, az.repeat(batch), el.repeat(batch), optics, **kwargs)
+        images = trace(heliostat, target, az, el, optics, **kwargs)
     return images, (time.perf_counter() - start) / batch
 
 
@@ -81,14 +87,18 @@ def _rss_mb() -> float:
 def _throughput_worker(rays: int, threads: int, queue) -> None:
     torch.set_num_threads(threads)
     base = _rss_mb()
-    _timed(rays=10_000, cells_per_side=32)  # warm-up: the cached random pool, einsum paths
+    _, optics, *_ = scene()
+    start = time.perf_counter()
+    sample_pool(optics.sun, float(optics.slope_error), POOL_SIZE)  # the exact samples every trace reads
+    pool_seconds = time.perf_counter() - start
+    _timed(rays=10_000, cells_per_side=32)  # warm-up: einsum paths, allocator
     _, seconds = _timed(rays=rays, cells_per_side=32, seed=1)
-    queue.put((rays / seconds, _rss_mb(), base))
+    queue.put((rays / seconds, _rss_mb(), base, pool_seconds))
 
 
-def throughput(rays: int, threads: int) -> tuple[float, float, float]:
-    """(rays per second, peak RSS in MB, RSS after imports in MB) of one bilinear trace (after a
-    small warm-up trace), each in a fresh process."""
+def throughput(rays: int, threads: int) -> tuple[float, float, float, float]:
+    """(rays per second, peak RSS in MB, RSS after imports in MB, seconds to draw the sample pool) of
+    one bilinear trace (after a small warm-up trace), each in a fresh process."""
     ctx = mp.get_context("spawn")
     queue = ctx.Queue()
     proc = ctx.Process(target=_throughput_worker, args=(rays, threads, queue))
@@ -100,13 +110,14 @@ def throughput(rays: int, threads: int) -> tuple[float, float, float]:
 
 def time_to_psnr(reference: torch.Tensor, batch: int, goal_db: float = 40.0) -> dict[str, tuple[float, float, str]]:
     """For each splat mode: (seconds per image, worst PSNR in the batch, setting) of the cheapest
-    setting whose every image reaches goal_db, tracing `batch` images at once (as datasets are
-    traced). Bilinear rays grow by 1.25x per step, kernel cells by one per side."""
+    setting whose every image reaches goal_db against its reference (batch, H, W), tracing the
+    first `batch` sun positions at once (as datasets are traced). Bilinear rays grow by 1.25x per
+    step, kernel cells by one per side."""
     found = {}
     rays = 100_000
     while rays <= 64_000_000:
         images, seconds = _timed(batch, rays=rays, cells_per_side=32, seed=7)
-        worst = min(psnr(image, reference) for image in images)
+        worst = min(psnr(image, ref) for image, ref in zip(images, reference))
         if worst >= goal_db:
             found["bilinear"] = (seconds, worst, f"{rays:.2e} rays")
             break
@@ -114,7 +125,7 @@ def time_to_psnr(reference: torch.Tensor, batch: int, goal_db: float = 40.0) -> 
     for cells in range(4, 65):
         _timed(batch, rays=0, splat="kernel", cells_per_side=cells)  # warm-up of the footprint tables
         images, seconds = _timed(batch, rays=0, splat="kernel", cells_per_side=cells)
-        worst = min(psnr(image, reference) for image in images)
+        worst = min(psnr(image, ref) for image, ref in zip(images, reference))
         if worst >= goal_db:
             found["kernel"] = (seconds, worst, f"{cells}x{cells} cells")
             break
@@ -126,13 +137,17 @@ def raytrace(threads: int, reference_rays: int) -> None:
     print(f"helioflow raytrace benchmark: 64x64 target, {threads} threads, torch {torch.__version__}")
     print(f"{'rays':>12} {'Mrays/s':>9} {'peak RSS MB':>12} {'after imports MB':>17}")
     for rays in (10**5, 10**6, 10**7, 10**8):
-        rate, peak, base = throughput(rays, threads)
+        rate, peak, base, pool_seconds = throughput(rays, threads)
         print(f"{rays:>12.0e} {rate / 1e6:>9.1f} {peak:>12.0f} {base:>17.0f}")
+    print(f"ray sampling: each ray's draw from the pool is in the rates; the pool ({POOL_SIZE:.1e} exact Buie sun "
+          f"and slope samples, drawn once per sun shape and slope error) took {pool_seconds:.2f} s, not in the rates")
+    batch = len(SUN_DEG)
     start = time.perf_counter()
-    reference, _ = _timed(rays=reference_rays, cells_per_side=64, seed=12345)
-    print(f"reference: {reference_rays:.0e} bilinear rays in {time.perf_counter() - start:.1f} s")
-    for batch in (1, 16):
-        found = time_to_psnr(reference[0], batch)
+    reference, _ = _timed(batch, rays=reference_rays, cells_per_side=64, seed=12345)
+    print(f"reference: {reference_rays:.0e} bilinear rays per image at {batch} sun positions in "
+          f"{time.perf_counter() - start:.1f} s")
+    for batch in (1, len(SUN_DEG)):
+        found = time_to_psnr(reference[:batch], batch)
         for mode, (seconds, db, setting) in found.items():
             print(f"time to PSNR 40 dB, {mode:>8}, batch of {batch:>2}: {seconds * 1e3:7.1f} ms per image "
                   f"({setting}, worst {db:.1f} dB)")
@@ -140,7 +155,7 @@ def raytrace(threads: int, reference_rays: int) -> None:
             print(f"  kernel reaches 40 dB {found['bilinear'][0] / found['kernel'][0]:.0f}x sooner than bilinear")
 
 
-FIELD_SIZES = (100, 300, 1000)
+FIELD_SIZES = (100, 300, 1000)  # heliostats, default of --sizes
 FIELD_EFFECTS = {"sunshape": {"kind": "buie", "csr": 0.1}, "slope_error": {"sigma_mrad": 1.5}, "tracking": {},
                  "canting": {}, "surface": {}, "reflectivity": {"value": 0.95},
                  "attenuation": {"model": "vittitoe_biggs_clear"}, "blocking_shading": {}}
@@ -186,12 +201,12 @@ def _field_worker(n: int, threads: int, queue) -> None:
     queue.put((setup, seconds, _rss_mb(), base, totals))
 
 
-def field(threads: int) -> None:
+def field(threads: int, sizes: tuple[int, ...] = FIELD_SIZES) -> None:
     print(f"helioflow field benchmark: 128x128 receiver, {threads} threads, torch {torch.__version__}")
     print(f"{'heliostats':>10} {'setup s':>8} {'flux map s':>10} {'peak RSS MB':>12} {'after imports MB':>17}"
           f" {'shaded':>7} {'blocked':>8} {'attenuated':>10} {'intercept':>9}")
     ctx = mp.get_context("spawn")
-    for n in FIELD_SIZES:
+    for n in sizes:
         queue = ctx.Queue()
         proc = ctx.Process(target=_field_worker, args=(n, threads, queue))
         proc.start()
@@ -271,13 +286,14 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m helioflow.bench", description=__doc__.splitlines()[0])
     ap.add_argument("name", choices=["raytrace", "field", "fit"])
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--reference-rays", type=int, default=10**8)
+    ap.add_argument("--reference-rays", type=int, default=10**8, help="raytrace: rays per reference image")
+    ap.add_argument("--sizes", type=int, nargs="+", default=FIELD_SIZES, help="field: heliostats per field")
     ap.add_argument("--dataset", default="results/default/datasets/semi_sphere.h5", help="fit: the dataset")
     ap.add_argument("--heliostat", default="results/default/surfaces/multi_facet.h5",
                     help="fit: the true heliostat the dataset was traced from")
     args = ap.parse_args(argv)
     if args.name == "field":
-        field(args.threads)
+        field(args.threads, tuple(args.sizes))
     elif args.name == "fit":
         fit(args.dataset, args.heliostat, args.threads)
     else:

@@ -224,10 +224,13 @@ def train_params(config: dict, dataset: str, model: str) -> dict:
             "device": config["device"]}
 
 
-def train_threads(config: dict, model: str) -> int:
-    """torch CPU threads of rule `train`: config torch_threads, one for the nearest baseline (a copy
-    of the training images: a short job that -j2 runs beside another)."""
-    return 1 if parse_model(model)[0] == "nearest" else config["torch_threads"]
+def train_threads(config: dict, dataset: str, model: str) -> int:
+    """torch CPU threads of rule `train`: config torch_threads, but one for the nearest baseline (a
+    copy of the training images) and for the field's measured heliostats (many small fits): -j2 runs
+    two of those at once."""
+    if parse_model(model)[0] == "nearest" or dataset in field_measured(config):
+        return 1
+    return config["torch_threads"]
 
 
 def heliostat_path(config: dict, dataset: str) -> str:

@@ -6,11 +6,14 @@ from helioflow.config import load_config
 from helioflow.errors import ConfigError
 from helioflow.workflow import (
     efficiency_metrics,
+    expand_config,
+    field_measured,
     models,
     parse_model,
     report_inputs,
     train_inputs,
     train_params,
+    train_threads,
 )
 
 
@@ -71,3 +74,11 @@ def test_physics_models_get_the_datasets_model_effects_and_heliostat_file(config
     assert train_inputs(config, "semi_sphere", "drt") == {"dataset": "results/default/datasets/semi_sphere.h5",
                                                           "heliostat": "results/default/surfaces/multi_facet.h5"}
     assert train_inputs(config, "semi_sphere", "nearest-n5") == {"dataset": "results/default/datasets/semi_sphere.h5"}
+
+
+def test_short_and_many_small_trainings_take_one_thread_the_rest_torch_threads(config):
+    """-j2 runs two one-thread jobs at once; the number is fixed by the config, not by -j."""
+    config = expand_config(config)
+    assert train_threads(config, "sanity_check", "nearest") == 1
+    assert train_threads(config, "sanity_check", "drt") == config["torch_threads"]
+    assert train_threads(config, field_measured(config)[0], "drt") == 1

@@ -7,13 +7,13 @@ rule train:
         curve=f"{RESULTS}/models/{{dataset}}/{{model}}_curve.csv",
         curve_figure=f"{RESULTS}/models/{{dataset}}/{{model}}_curve.png",
     params:
-        torch_threads=lambda wc: train_threads(config, wc.model),
+        torch_threads=lambda wc: train_threads(config, wc.dataset, wc.model),
         spec=lambda wc: json.dumps(train_params(config, wc.dataset, wc.model)),
     log:
         f"{RESULTS}/logs/train/{{dataset}}/{{model}}.log",
     benchmark:
         f"{RESULTS}/benchmarks/train/{{dataset}}/{{model}}.tsv"
-    threads: lambda wc: train_threads(config, wc.model)
+    threads: lambda wc: train_threads(config, wc.dataset, wc.model)
     shell:
         "helioflow --threads {params.torch_threads:q} train --spec {params.spec:q} --dataset {input.dataset:q}"
         " --output {output.model:q} --curve {output.curve:q} --curve-figure {output.curve_figure:q} > {log:q} 2>&1"

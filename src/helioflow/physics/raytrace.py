@@ -187,7 +187,7 @@ def _project(heliostat: Heliostat, samples, sun: Tensor, target: Target, aim: Te
 
 
 @functools.lru_cache(maxsize=4)
-def _pool(sun: SunShape, slope_error: float, n: int) -> Tensor:
+def sample_pool(sun: SunShape, slope_error: float, n: int) -> Tensor:
     """(6, n) float64 random rows: sun deviation (2, rad), slope tilt (2, rad), cell jitter (2, in [-1, 1]).
 
     Drawn once per (sun shape, slope error, size) from a fixed seed and cached: drawing exact
@@ -209,7 +209,7 @@ def _splat_bilinear(
     dtype, device = c.power.dtype, c.power.device
     per_point = max(1, math.ceil(rays / n_points))
     pool_size = POOL_SIZE
-    pool = _pool(optics.sun, float(optics.slope_error), pool_size).to(device=device, dtype=dtype)
+    pool = sample_pool(optics.sun, float(optics.slope_error), pool_size).to(device=device, dtype=dtype)
     # Only the random components that do something are drawn: sun (0, 1), slope (2, 3), jitter (4, 5).
     active = [0, 1] * (optics.sun.kind != "point") + [2, 3] * (optics.slope_error > 0) + [4, 5]
     direction, position = _randomly_turned(*_pixel_coefficients(c, target), generator)
