@@ -81,6 +81,22 @@ def cmd_import_paint(args) -> None:
         logging.info("wrote %s: the ideal geometry of %s", args.heliostat_output, spec["heliostat"])
 
 
+def cmd_import_images(args) -> None:
+    from .data.images import import_images
+
+    if args.output is None and args.heliostat_output is None:
+        raise HelioflowError("give --output (the dataset), --heliostat-output (the geometry) or both")
+    spec = _spec(args, workflow.import_images_params)  # by hand: --name is the dataset's name
+    ds = import_images(spec, args.output, args.heliostat_output)
+    if ds is not None:
+        labels = dict(Counter(ds.split.tolist()))
+        logging.info("wrote %s: %d images of %s from %s (%s x %s pixels; splits %s; sun from %s)", args.output,
+                     len(ds.images), ds.images.shape[1:], spec["csv"], *ds.attrs["source_image_shape"][::-1], labels,
+                     ds.attrs["sun_from"])
+    if args.heliostat_output is not None:
+        logging.info("wrote %s: the ideal geometry of %s", args.heliostat_output, spec["heliostat"])
+
+
 def cmd_paint_centroids(args) -> None:
     from .evaluate.paint_centroids import centroid_check, format_table, write_centroid_check
 
@@ -222,6 +238,13 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--heliostat-output", help="surfaces/{heliostat}.h5: the ideal heliostat geometry")
     _with_spec(p)
     p.set_defaults(func=cmd_import_paint)
+
+    p = sub.add_parser("import-images", help="import one's own calibration images (a folder and a CSV): dataset "
+                       "and/or ideal geometry")
+    p.add_argument("--output", help="datasets/{dataset}.h5")
+    p.add_argument("--heliostat-output", help="surfaces/{dataset}.h5: the heliostat's ideal geometry")
+    _with_spec(p)
+    p.set_defaults(func=cmd_import_images)
 
     p = sub.add_parser("paint-centroids", help="measured vs ideal spot centroid (mrad) per PAINT image")
     p.add_argument("--dataset", required=True, help="datasets/{dataset}.h5 from import-paint")

@@ -151,9 +151,16 @@ def _check_references(config: dict, source: str) -> None:
         if ds["source"] == "paint":
             _check_paint_dataset(config, name, where)
             continue
+        if ds["source"] == "images":
+            _check_images_dataset(config, name, where)
+            continue
         extra = sorted(_PAINT_KEYS & set(ds))
         if extra:
-            raise ConfigError(f"{where}: key {extra[0]!r} is for PAINT datasets; add source: paint or remove it")
+            raise ConfigError(f"{where}: key {extra[0]!r} is for PAINT datasets or own images; add source: paint "
+                              "or source: images, or remove it")
+        extra = sorted(_IMAGES_KEYS & set(ds))
+        if extra:
+            raise ConfigError(f"{where}: key {extra[0]!r} is for own images; add source: images or remove it")
         if ds["heliostat"] not in config["heliostats"]:
             known = ", ".join(config["heliostats"])
             raise ConfigError(f"{where}.heliostat = {ds['heliostat']!r} is not a heliostat in config; known: {known}")
@@ -247,9 +254,10 @@ def _check_paint_dataset(config: dict, name: str, where: str) -> None:
     """A PAINT dataset takes no trace keys, and its heliostat (a PAINT folder, whose geometry goes
     to surfaces/<heliostat>.h5) is no configured heliostat and comes from one PAINT directory."""
     ds = config["datasets"][name]
-    extra = sorted(_TRACE_KEYS & set(ds))
+    extra = sorted((_TRACE_KEYS | _IMAGES_KEYS) & set(ds))
     if extra:
-        raise ConfigError(f"{where}: key {extra[0]!r} is for traced datasets; a PAINT dataset (source: paint) "
+        kind = "traced datasets" if extra[0] in _TRACE_KEYS else "own images (source: images)"
+        raise ConfigError(f"{where}: key {extra[0]!r} is for {kind}; a PAINT dataset (source: paint) "
                           f"takes {', '.join(['heliostat', *sorted(_PAINT_KEYS)])}")
     if ds["heliostat"] in config["heliostats"]:
         raise ConfigError(f"{where}.heliostat = {ds['heliostat']!r} is also a configured heliostat; both would "
@@ -266,6 +274,71 @@ def _check_paint_dataset(config: dict, name: str, where: str) -> None:
         found = sorted(d.name for d in paint_dir.iterdir() if d.is_dir())
         raise ConfigError(f"{where}.heliostat = {ds['heliostat']!r}: no such heliostat folder in {ds['paint_dir']}; "
                           f"folders there: {', '.join(found) or 'none'}")
+
+
+_IMAGES_KEYS = {"images_dir", "csv", "target", "site", "heliostat_properties", "origin_wgs84"}
+_IMAGES_TAKES = ("images_dir", "csv", "target", "heliostat or heliostat_properties with origin_wgs84", "site",
+                 "resolution", "splits or holdout", "model_effects")
+
+
+def _check_images_dataset(config: dict, name: str, where: str) -> None:
+    """An images dataset (source: images) takes no trace or PAINT keys, one heliostat (inline and ideal,
+    or heliostat_properties with origin_wgs84) that sees the target, splits or holdout (not both);
+    its folder and CSV exist, the CSV's timestamps have a site, and its heliostat file
+    (surfaces/<dataset>.h5) is no other heliostat's."""
+    from .data.images import ERROR_KEYS, TIMESTAMP, check_ideal, read_table
+    from .errors import DataError, HelioflowError
+
+    ds = config["datasets"][name]
+    extra = sorted(((_TRACE_KEYS - {"splits"}) | {"paint_dir", "targets"}) & set(ds))
+    if extra:
+        raise ConfigError(f"{where}: key {extra[0]!r} is not for own images; a dataset with source: images takes "
+                          f"{', '.join(_IMAGES_TAKES)}")
+    if not any(abs(x) > 0 for x in ds["target"]["normal"]):
+        raise ConfigError(f"{where}.target.normal = {ds['target']['normal']}: expected a non-zero vector")
+    if ("heliostat" in ds) == ("heliostat_properties" in ds):
+        which = "both heliostat and" if "heliostat" in ds else "neither heliostat nor"
+        raise ConfigError(f"{where}: {which} heliostat_properties; give exactly one: the geometry inline (heliostat: "
+                          "the keys of a heliostats entry) or a PAINT-style heliostat-properties.json")
+    if "heliostat_properties" in ds:
+        if "origin_wgs84" not in ds:
+            raise ConfigError(f"{where}: heliostat_properties {ds['heliostat_properties']!r} gives WGS84 positions; "
+                              "add origin_wgs84: [latitude, longitude, altitude], the origin of the target's ENU frame")
+        if not Path(ds["heliostat_properties"]).is_file():
+            raise ConfigError(f"{where}.heliostat_properties = {ds['heliostat_properties']!r}: no such file")
+    else:
+        if "origin_wgs84" in ds:
+            raise ConfigError(f"{where}: origin_wgs84 is for heliostat_properties; an inline heliostat's position_m "
+                              "is already ENU: remove it")
+        try:
+            check_ideal(ds["heliostat"], f"{where}.heliostat")
+        except HelioflowError as exc:
+            raise ConfigError(str(exc)) from None
+        for key in ERROR_KEYS + ("seed",):
+            ds["heliostat"].pop(key, None)
+        position, target = ds["heliostat"]["position_m"], ds["target"]
+        if facing(position, target["center_m"], target["normal"]) <= 0:
+            raise ConfigError(f"{where}: heliostat position_m {position} is not in front of the target (target.center_m "
+                              f"{target['center_m']}, target.normal {target['normal']} points towards the heliostat): "
+                              "it cannot see the target")
+    if ds.get("splits") and ds.get("holdout"):
+        raise ConfigError(f"{where}: give splits (rules on the sun positions) or holdout (image ids), not both")
+    if name in config["heliostats"]:
+        raise ConfigError(f"{where}: an images dataset's heliostat is named like the dataset and written to "
+                          f"surfaces/{name}.h5, as is the configured heliostat {name!r}; rename the dataset")
+    for other, o in config["datasets"].items():
+        if o["source"] == "paint" and o["heliostat"] == name:
+            raise ConfigError(f"{where}: an images dataset's heliostat is named like the dataset and written to "
+                              f"surfaces/{name}.h5, as is datasets.{other}'s PAINT heliostat; rename the dataset")
+    if not Path(ds["images_dir"]).is_dir():
+        raise ConfigError(f"{where}.images_dir = {ds['images_dir']!r}: no such folder")
+    try:
+        columns = read_table(ds["csv"])[0]
+    except DataError as exc:
+        raise ConfigError(f"{where}.csv: {exc}") from None
+    if TIMESTAMP in columns and not {"azimuth_deg", "elevation_deg"} <= set(columns) and "site" not in ds:
+        raise ConfigError(f"{where}: {ds['csv']} gives the sun by {TIMESTAMP}; add site: {{latitude_deg, "
+                          "longitude_deg, altitude_m}, where the images were taken")
 
 
 @dataclass(frozen=True)

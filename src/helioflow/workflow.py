@@ -13,6 +13,7 @@ from pathlib import Path
 
 from .errors import ConfigError, DataError
 
+IMPORTED_SOURCES = ("paint", "images")  # datasets imported, not traced (no true heliostat behind them)
 PHYSICS_MODELS = ("raytrace", "drt")  # models that trace the heliostat file (models/physical.py)
 NAME = r"[A-Za-z0-9][A-Za-z0-9_.-]*"  # a dataset or heliostat wildcard (config validation also refuses '..')
 
@@ -37,8 +38,13 @@ def _heliostat(config: dict, heliostat: str) -> dict:
 
 
 def dataset_heliostat(config: dict, dataset: str) -> str:
-    """Name of the heliostat a dataset is traced from."""
-    return _dataset(config, dataset)["heliostat"]
+    """Name of the heliostat a dataset is traced from (or imported with): its `heliostat`, but for
+    own images (source: images, whose `heliostat` is the geometry itself) the dataset's name, or
+    for a leave-one-out fold its dataset's name (surfaces/<that name>.h5)."""
+    ds = _dataset(config, dataset)
+    if ds.get("source") == "images":
+        return ds.get(FOLD_KEY) or dataset
+    return ds["heliostat"]
 
 
 def surfaces_params(config: dict, heliostat: str) -> dict:
@@ -82,7 +88,8 @@ def existing_upstream_files(config: dict) -> list[Path]:
     """The heliostat files, datasets and model files of the experiment that exist already: what
     `check_readable` looks at before snakemake decides what to rerun."""
     r = Path(results_dir(config))
-    names = [r / "surfaces" / f"{h}.h5" for h in {**config["heliostats"], **dict.fromkeys(paint_heliostats(config))}]
+    imported = dict.fromkeys(paint_heliostats(config) + images_heliostats(config))
+    names = [r / "surfaces" / f"{h}.h5" for h in {**config["heliostats"], **imported}]
     names += [r / "datasets" / f"{d}.h5" for d in config["datasets"]]
     names += [r / "models" / d / f"{m}.pt" for d in config["datasets"] for m in models(config)]
     return [p for p in names if p.is_file()]
@@ -120,8 +127,19 @@ def paint_datasets(config: dict) -> list[str]:
 
 
 def traced_datasets(config: dict) -> list[str]:
-    """Names of the datasets the `trace` rule makes (every one not imported from PAINT)."""
-    return [d for d, ds in config["datasets"].items() if ds.get("source") != "paint"]
+    """Names of the datasets the `trace` rule makes (every one not imported: source synthetic)."""
+    return [d for d, ds in config["datasets"].items() if ds.get("source") not in IMPORTED_SOURCES]
+
+
+def images_datasets(config: dict) -> list[str]:
+    """Names of the datasets imported from a folder of one's own images (source: images)."""
+    return [d for d, ds in config["datasets"].items() if ds.get("source") == "images"]
+
+
+def images_heliostats(config: dict) -> list[str]:
+    """The heliostat files the images datasets write (surfaces/<name>.h5: dataset_heliostat), each
+    once, in config order."""
+    return list(dict.fromkeys(dataset_heliostat(config, d) for d in images_datasets(config)))
 
 
 def paint_heliostats(config: dict) -> list[str]:
@@ -187,6 +205,68 @@ def paint_heliostat_inputs(config: dict, heliostat: str) -> dict:
 def _paint_files(paint_dir: str, heliostat: str) -> dict:
     return {"tower": str(Path(paint_dir) / "tower-measurements.json"),
             "properties": str(Path(paint_dir) / heliostat / "heliostat-properties.json")}
+
+
+def _images_dataset(config: dict, dataset: str) -> dict:
+    ds = _dataset(config, dataset)
+    if ds.get("source") != "images":
+        raise ConfigError(f"dataset {dataset!r} is not imported from images (source: {ds.get('source')})")
+    return ds
+
+
+def _images_geometry(ds: dict) -> dict:
+    """The heliostat of an images dataset: inline (`heliostat_geometry`) or a heliostat-properties.json
+    with the WGS84 origin of the ENU frame."""
+    if ds.get("heliostat") is not None:
+        return {"heliostat_geometry": copy.deepcopy(ds["heliostat"])}
+    return {"heliostat_properties": ds["heliostat_properties"], "origin_wgs84": ds.get("origin_wgs84")}
+
+
+def import_images_params(config: dict, dataset: str) -> dict:
+    """Parameters of rule `import_images`: the images folder and CSV, image resolution (default
+    target.resolution), target plane, site, heliostat geometry (dataset_heliostat names it), splits
+    or held-out image ids, the seed (of the splits) and the nominal DNI."""
+    ds = _images_dataset(config, dataset)
+    return {
+        "dataset": dataset,
+        "heliostat": dataset_heliostat(config, dataset),
+        "images_dir": ds["images_dir"],
+        "csv": ds["csv"],
+        "resolution": list(ds.get("resolution") or config["target"]["resolution"]),
+        "target": copy.deepcopy(ds["target"]),
+        "site": copy.deepcopy(ds.get("site")),
+        **_images_geometry(ds),
+        "splits": copy.deepcopy(ds.get("splits")),
+        "holdout": list(ds.get("holdout") or []),
+        "seed": config["seed"],
+        "dni_w_m2": config["dni_w_m2"],
+    }
+
+
+def images_heliostat_params(config: dict, heliostat: str) -> dict:
+    """Parameters of rule `images_heliostat`: the geometry of the images dataset(s) of that name."""
+    for d in images_datasets(config):
+        if dataset_heliostat(config, d) == heliostat:
+            return {"heliostat": heliostat, **_images_geometry(config["datasets"][d])}
+    raise ConfigError(f"no images dataset has heliostat {heliostat!r}; their heliostats: "
+                      f"{', '.join(images_heliostats(config)) or 'none'}")
+
+
+def import_images_inputs(config: dict, dataset: str) -> dict:
+    """Files rule `import_images` reads: the CSV, every image it lists and a heliostat-properties.json."""
+    p = import_images_params(config, dataset)
+    from .data.images import image_files
+
+    files = {"csv": p["csv"], "images": image_files(p["csv"], p["images_dir"])}
+    if p.get("heliostat_properties"):
+        files["properties"] = p["heliostat_properties"]
+    return files
+
+
+def images_heliostat_inputs(config: dict, heliostat: str) -> dict:
+    """Files rule `images_heliostat` reads: the heliostat-properties.json, if the geometry is one."""
+    p = images_heliostat_params(config, heliostat)
+    return {"properties": p["heliostat_properties"]} if p.get("heliostat_properties") else {}
 
 
 def dataset_paths(config: dict) -> list[str]:
@@ -288,8 +368,8 @@ def recovery_paths(config: dict) -> list[str]:
     heliostat) of every synthetic dataset the networks are scored on, when `drt` is among them."""
     if "drt" not in (config.get("networks") or {}):
         return []
-    paint = set(paint_datasets(config))
-    return [f"{results_dir(config)}/recovery/{d}.json" for d in network_datasets(config) if d not in paint]
+    imported = set(paint_datasets(config)) | set(images_datasets(config))
+    return [f"{results_dir(config)}/recovery/{d}.json" for d in network_datasets(config) if d not in imported]
 
 
 def report_inputs(config: dict) -> dict[str, list[str]]:
@@ -546,7 +626,7 @@ def compose_field_params(config: dict) -> dict:
     }
 
 
-# --- leave-one-out on a handful of real images (PAINT datasets with holdout: leave_one_out) -----
+# --- leave-one-out on a handful of real images (PAINT or images datasets with holdout: leave_one_out)
 
 LEAVE_ONE_OUT = "leave_one_out"
 LOO_MAX_FOLDS = 20  # more measurements than this: hold out a list of ids instead
@@ -554,8 +634,19 @@ FOLD_KEY = "leave_one_out_of"  # marks a generated fold with its dataset's name
 
 
 def leave_one_out_ids(dataset: dict) -> list[str]:
-    """The measurement ids of a PAINT dataset on its `targets` (all when null), in import order;
-    ConfigError naming the folder when it cannot be read or holds no measurement."""
+    """The measurement ids of a PAINT dataset on its `targets` (all when null), in import order, or
+    the image ids of an images dataset's CSV; ConfigError naming the folder or CSV when it cannot be
+    read or holds fewer than two."""
+    if dataset.get("source") == "images":
+        from .data.images import image_ids
+
+        try:
+            ids = image_ids(dataset["csv"])
+        except DataError as exc:
+            raise ConfigError(f"holdout: leave_one_out needs the image ids: {exc}") from None
+        if len(ids) < 2:
+            raise ConfigError(f"holdout: leave_one_out needs at least two images; {dataset['csv']} has {len(ids)}")
+        return ids
     from .data.paint import measurement_targets
 
     try:
@@ -572,7 +663,7 @@ def leave_one_out_ids(dataset: dict) -> list[str]:
 
 
 def leave_one_out_folds(name: str, dataset: dict) -> dict[str, dict]:
-    """The fold datasets of a PAINT dataset with holdout: leave_one_out: '<name>_loo_<id>' per
+    """The fold datasets of a PAINT or images dataset with holdout: leave_one_out: '<name>_loo_<id>' per
     measurement id (leave_one_out_ids), each the dataset with that one id held out and marked
     with FOLD_KEY = name."""
     ids = leave_one_out_ids(dataset)
@@ -587,7 +678,7 @@ def leave_one_out_folds(name: str, dataset: dict) -> dict[str, dict]:
 
 
 def expand_leave_one_out(config: dict) -> dict:
-    """The config (a copy) with every PAINT dataset whose holdout is leave_one_out replaced by its
+    """The config (a copy) with every PAINT or images dataset whose holdout is leave_one_out replaced by its
     folds (leave_one_out_folds), in place of it in `datasets`' order, so that the existing
     import, train, evaluate and diagnose rules run per fold. A fold name already in use raises
     ConfigError."""
