@@ -171,7 +171,7 @@ def import_paint_params(config: dict, dataset: str) -> dict:
         "paint_dir": ds["paint_dir"],
         "heliostat": ds["heliostat"],
         "resolution": list(ds.get("resolution") or config["target"]["resolution"]),
-        "holdout": list(ds.get("holdout") or []),
+        "holdout": copy.deepcopy(ds.get("holdout") or []),
         "targets": ds.get("targets"),
         "dni_w_m2": config["dni_w_m2"],
     }
@@ -237,7 +237,7 @@ def import_images_params(config: dict, dataset: str) -> dict:
         "site": copy.deepcopy(ds.get("site")),
         **_images_geometry(ds),
         "splits": copy.deepcopy(ds.get("splits")),
-        "holdout": list(ds.get("holdout") or []),
+        "holdout": copy.deepcopy(ds.get("holdout") or []),
         "seed": config["seed"],
         "dni_w_m2": config["dni_w_m2"],
     }

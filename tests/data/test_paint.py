@@ -290,3 +290,17 @@ def test_ideal_spot_lands_on_the_aim_point_and_is_oriented_like_the_measured_one
         assert 1.0 < r["image_mrad"] < 25.0
         angle = r["spot_angle_deg"]
         assert abs(angle["ideal"] - angle["measured"]) < 5.0
+
+
+def test_a_holdout_fraction_holds_out_a_seeded_share_of_the_measurements(tmp_path):
+    """holdout: {fraction, seed}: round(fraction * N) measurements, the same ones for the same seed,
+    others for another; at least one stays for training."""
+    from helioflow.data.paint import held_out
+
+    ids = [f"m{i}" for i in range(40)]
+    quarter = held_out(ids, {"fraction": 0.25, "seed": 3})
+    assert len(quarter) == 10 and set(quarter) <= set(ids)
+    assert held_out(ids, {"fraction": 0.25, "seed": 3}) == quarter != held_out(ids, {"fraction": 0.25, "seed": 4})
+    assert len(held_out(ids[:2], {"fraction": 0.9})) == 1
+    ds = import_paint(PAINT, "AA39", tmp_path / "x.h5", holdout={"fraction": 0.5, "seed": 0})
+    assert (ds.split != "train").sum() == 3

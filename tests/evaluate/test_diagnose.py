@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from helioflow.evaluate.diagnose import ABSOLUTE_FLOOR, THRESHOLD, Diagnosis, misplaced_flux, update_ledger
+from helioflow.evaluate.candidates import candidates, implausible, separating
+from helioflow.evaluate.diagnose import ABSOLUTE_FLOOR, ROUNDING, THRESHOLD, Diagnosis, misplaced_flux, update_ledger
 from helioflow.models.physics_fit import FitSettings, Measurements, Scene
 from helioflow.physics.heliostat import Heliostat, ideal_heliostat, without_planes
 from helioflow.physics.target import Target
@@ -101,11 +102,26 @@ def test_a_model_that_matches_the_world_raises_no_alarm():
 def test_scale_effects_are_not_identifiable_and_ranked_last():
     world = {"sunshape": BUIE, "reflectivity": {"value": 0.8}}
     d = diagnosis(world, {"sunshape": BUIE})
-    d.candidates = lambda: (["reflectivity", "slope_error"], [])
+    d.tried = [c for c in d.tried if c.label in ("reflectivity", "slope_error")]
     _, _, ranking, _ = d.rank()
     assert [r["effect"] for r in ranking] == ["slope_error", "reflectivity"]
     assert ranking[1]["identifiable"] is False and not ranking[1]["meaningful"]
     assert ranking[1]["fitted"]["value"] == pytest.approx(0.8, abs=0.01)  # the scale is still measured
+
+
+@pytest.mark.slow
+def test_adding_a_candidate_never_raises_the_training_loss():
+    """Nested fits: a model with one change more starts from the smaller model's optimum (the added
+    effect at values that do nothing, a freed value at the model's) and ends no worse on the train
+    split; a pair ends no worse than either of its members alone."""
+    world = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 1.0}, "tracking": {"axis1_offset_mrad": 1.0}}
+    d = diagnosis(world, {"sunshape": BUIE})
+    loss = lambda labels: d.fitted(labels)[1].history[-1]
+    nested = [c.label for c in d.tried if c.neutral is not None]
+    assert {"tracking", "slope_error", "camera", "sunshape: fit csr"} <= set(nested)
+    for label in nested:
+        assert loss([label]) <= loss([]) * (1.0 + ROUNDING), label  # no worse, up to rounding
+    assert loss(["tracking", "slope_error"]) <= min(loss(["tracking"]), loss(["slope_error"])) * (1.0 + ROUNDING)
 
 
 def test_misplaced_flux_ignores_scale_and_counts_moved_flux():
@@ -118,11 +134,36 @@ def test_misplaced_flux_ignores_scale_and_counts_moved_flux():
     assert 0.0 < THRESHOLD < 1.0 and ABSOLUTE_FLOOR > 0.0
 
 
-def test_the_ledger_keeps_revisions_in_order_and_replaces_a_rerun(tmp_path):
+def test_the_ledger_keeps_revisions_in_order_replaces_a_rerun_and_marks_the_current(tmp_path):
     path = tmp_path / "ledger.json"
     update_ledger(path, "d1", {"sunshape": BUIE}, 0.2)
     update_ledger(path, "d1", {"sunshape": BUIE, "tracking": {"axis1_offset_mrad": "fit"}}, 0.1)
-    ledger = update_ledger(path, "d1", {"sunshape": BUIE}, 0.19)
-    assert [(e["revision"], e["heldout_error"]) for e in ledger] == [(1, 0.19), (2, 0.1)]
+    ledger = update_ledger(path, "d1", {"sunshape": BUIE}, 0.19)  # back to the first model: a new revision
+    assert [(e["revision"], e["heldout_error"], e["current"]) for e in ledger] == [
+        (1, 0.2, False), (2, 0.1, False), (3, 0.19, True)]
     assert update_ledger(path, "d2", {}, 0.5)[0]["revision"] == 1  # other measurements, own ledger
-    assert np.isclose(update_ledger(path, "d1", {"sunshape": BUIE}, 0.18)[0]["heldout_error"], 0.18)
+    rerun = update_ledger(path, "d1", {"sunshape": BUIE}, 0.18)  # the same model again: replaces revision 3
+    assert [(e["revision"], e["heldout_error"]) for e in rerun][-1] == (3, 0.18) and len(rerun) == 3
+    assert np.isclose(rerun[-1]["heldout_error"], 0.18)
+
+
+def test_candidates_free_a_present_effect_and_switch_the_sun():
+    """A fixed slope error is freed, a Gaussian sun gets its width freed and a Buie sun tried; an
+    absent effect is added; a one-facet heliostat gets no canting."""
+    tried, skipped = candidates({"sunshape": {"kind": "gaussian", "sigma_mrad": 2.5},
+                                 "slope_error": {"sigma_mrad": 0.5}}, n_facets=1)
+    by_label = {c.label: c for c in tried}
+    assert by_label["slope_error: fit sigma_mrad"].change == "free"
+    assert by_label["slope_error: fit sigma_mrad"].neutral == {"sigma_mrad": 0.5}
+    assert by_label["sunshape: fit sigma_mrad"].params == {"kind": "gaussian", "sigma_mrad": "fit"}
+    assert by_label["sunshape: buie"].change == "switch" and by_label["sunshape: buie"].neutral is None
+    assert by_label["tracking"].change == "add"
+    assert "canting" not in by_label and {s["effect"] for s in skipped} == {"canting", "blocking_shading"}
+
+
+def test_implausible_values_are_flagged_and_confounded_pairs_get_their_separating_measurement():
+    assert implausible({"slope_error.sigma_mrad": 5.0, "camera.blur_px": 1.0, "tracking.axis1_offset_mrad": -12.0}) \
+        == ["slope_error.sigma_mrad = 5 (a slope error of several mrad (heliostat mirrors: ~1-2.5 mrad))",
+            "tracking.axis1_offset_mrad = -12 (tracking offsets of more than 10 mrad)"]
+    assert "target distance" in separating("camera", "slope_error") == separating("slope_error", "camera")
+    assert "sun shape" in separating("sunshape", "slope_error")

@@ -455,7 +455,7 @@ def build_dataset(spec: dict, geometry):
     images = (images / images.max(axis=(1, 2), keepdims=True)).astype(np.float32)
     az = np.array([r.azimuth_deg for r in rows])
     el = np.array([r.elevation_deg for r in rows])
-    holdout, splits = list(spec.get("holdout") or []), spec.get("splits")
+    holdout, splits = spec.get("holdout") or [], spec.get("splits")
     if holdout and splits:
         raise HelioflowError(f"datasets.{spec['dataset']}: give splits (rules) or holdout (image ids), not both")
     if holdout:

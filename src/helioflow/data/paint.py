@@ -42,7 +42,8 @@ Conventions (checked against the data; see tests/data/test_paint.py):
   offset along the normal is dropped (recorded in the file's ``source.dropped_normal_offset_m``):
   the ideal heliostat reflects the sun onto the aim point. Joint translations (all 0 in PAINT)
   and the actuator parameters are kinematic details the ideal heliostat does not use.
-- Splits: every image is "train" except the configured ``holdout`` ids, which are
+- Splits: every image is "train" except the configured ``holdout`` ids (or a seeded random
+  share: ``holdout: {fraction: 0.25, seed: 0}``), which are
   "interpolation" when their sun position lies inside the azimuth and elevation ranges of the
   train images and "extrapolation" otherwise.
 - Targets: a heliostat's measurements may be taken on several targets. The per-image target
@@ -358,9 +359,21 @@ def read_measurements(folder: Path, tower: Tower, targets: list[str] | None) -> 
     return measurements
 
 
-def split_labels(measurements: list[Measurement], holdout: list[str], folder: Path) -> np.ndarray:
-    """(N,) split labels: train, or for held-out ids interpolation/extrapolation (module docstring)."""
+def held_out(ids: list[str], holdout: list[str] | dict) -> list[str]:
+    """The held-out ids: `holdout` itself (a list of ids), or a seeded random share of `ids`
+    ({fraction, seed}: round(fraction * N) of them, at least one, never all)."""
+    if not isinstance(holdout, dict):
+        return list(holdout)
+    count = min(max(1, round(holdout["fraction"] * len(ids))), len(ids) - 1)
+    chosen = set(np.random.default_rng(holdout.get("seed", 0)).choice(len(ids), count, replace=False).tolist())
+    return [i for k, i in enumerate(ids) if k in chosen]
+
+
+def split_labels(measurements: list[Measurement], holdout: list[str] | dict, folder: Path) -> np.ndarray:
+    """(N,) split labels: train, or for held-out ids interpolation/extrapolation (module docstring);
+    `holdout`: ids, or {fraction, seed} (`held_out`)."""
     ids = [m.id for m in measurements]
+    holdout = held_out(ids, holdout)
     unknown = [h for h in holdout if h not in ids]
     if unknown:
         raise DataError(f"holdout ids {unknown} are not measurements in {folder}; "
@@ -386,7 +399,7 @@ def import_paint(
     dataset_path: str | os.PathLike | None = None,
     heliostat_path: str | os.PathLike | None = None,
     resolution: tuple[int, int] = (64, 64),
-    holdout: list[str] = (),
+    holdout: list[str] | dict = (),
     targets: list[str] | None = None,
     dataset: str | None = None,
     dni_w_m2: float = 1000.0,
@@ -403,7 +416,7 @@ def import_paint(
         heliostat_path: where to write the ideal geometry (surfaces/{heliostat}.h5); None = don't.
             The geometry alone needs no measurements.
         resolution: (rows, columns) of the dataset images.
-        holdout: measurement ids held out of training (module docstring: Splits).
+        holdout: measurement ids held out of training, or {fraction, seed} (module docstring: Splits).
         targets: import only measurements on these targets; None = all.
         dataset: the dataset's name (attribute); default the heliostat's.
         dni_w_m2: the nominal DNI (W/m^2) of the dataset's attribute (module docstring: Images).
@@ -421,7 +434,7 @@ def import_paint(
     ds = None
     if dataset_path is not None:
         spec = {"paint_dir": str(paint_dir), "targets": targets, "dni_w_m2": float(dni_w_m2)}
-        ds = build_dataset(measurements, tower, geometry, tuple(resolution), list(holdout), folder,
+        ds = build_dataset(measurements, tower, geometry, tuple(resolution), holdout, folder,
                            dataset or heliostat, heliostat, spec)
     written: list[Path] = []
     try:

@@ -2,14 +2,18 @@
 
 1. The model (config `model.effects`, its "fit" parameters fitted on the train split) predicts
    every measured image; residual signatures against sun position are measured (`signatures`).
-2. Attribution: every registry effect the model lacks is added with its parameters marked
-   "fit", fitted on the train split, and scored on the held-out splits (interpolation and
-   extrapolation together). With one effect missing, the one that cuts the held-out error most
-   is it; with several, an effect that mimics them all in part (the flexible surface) can win
-   alone. So the identifiable candidates are chosen by stepwise selection (`stepwise`): forward,
-   add the candidate that cuts the held-out error of the model plus the effects chosen so far
-   most, while that cut is meaningful; backward, after each addition, drop a chosen effect that
-   the others have made unnecessary. The chosen effects lead the ranking; pure scale effects
+2. Attribution: every candidate change (evaluate/candidates.py: an effect the model lacks, a
+   present effect's fixed values freed, the sun switched to another profile) is fitted on the
+   train split and scored on the held-out splits (interpolation and extrapolation together). Fits
+   are nested: a model with one change more starts from the best fit with one fewer and never ends
+   with a higher training loss. With one effect missing, the change that cuts the held-out error
+   most is it; with several, a flexible effect (the surface) that mimics them all in part can win
+   alone. So the identifiable candidates are chosen as the best subset (`Diagnosis.select`): the
+   best single change, then the best pair whose both members are needed (dropping either costs a
+   meaningful error), kept when it beats the single meaningfully, and so on up to `max_effects`
+   (cost: every compatible subset of that size is fitted, e.g. 28 pairs of 8 candidates). Changes
+   that explain the same residual are reported as confounded, with the measurement that would
+   separate them; fitted values outside their physical range are flagged. Pure scale effects
    (unidentifiable on images compared by shape) are listed after the others.
 3. A plain-language verdict names the top effect with its signature.
 
@@ -23,6 +27,7 @@ better fit is the noise of fitting more parameters.
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import logging
 import os
@@ -38,16 +43,19 @@ from ..device import resolve_device
 from ..errors import DataError
 from ..io import write_text_atomic
 from ..models.physics_fit import (
+    TENSORS,
     FitResult,
     FitSettings,
     Measurements,
     Scene,
     dataset_scene,
     fit_effects,
+    initial_tensors,
     normalised,
 )
-from ..physics.effects import FIT, REGISTRY
+from ..physics.effects import FIT, REGISTRY, fitted_parameters
 from ..physics.target import centroid
+from .candidates import Candidate, candidates, implausible, separating
 
 log = logging.getLogger(__name__)
 
@@ -56,20 +64,11 @@ ERROR_MEASURE = {"name": "misplaced_flux_fraction",
                                 "sum: the fraction of the spot's flux in the wrong place (0 = same shape)"}
 THRESHOLD = 0.25  # relative held-out error reduction a candidate needs to count
 ABSOLUTE_FLOOR = 0.002  # ... and absolute reduction of the misplaced flux fraction
+ROUNDING = 1e-3  # relative: a nested fit that ends no worse than its start up to this (float32 rounding of
+#                   a loss that is a small difference of large numbers) keeps its own values
+CONFOUNDED_RATIO = 1.5  # two changes whose held-out errors are within this factor explain the same residual alike
 CORE_FRACTION = 0.05  # the sun-limited core: pixels where the model's spot exceeds this fraction of its peak
 
-# how each absent effect is tried: its parameters, "fit" where fitted
-CANDIDATES = {
-    "sunshape": {"kind": "gaussian", "sigma_mrad": FIT},
-    "slope_error": {"sigma_mrad": FIT},
-    "tracking": {p.name: FIT for p in REGISTRY["tracking"].parameters},
-    "canting": {"facet_tilts_mrad": FIT},
-    "surface": {"control_heights_mm": FIT},
-    "attenuation": {"model": "constant", "transmittance": FIT},
-    "reflectivity": {"value": FIT},
-    "camera": {"gain": FIT, "background_w_m2": FIT, "blur_px": FIT},
-}
-NOT_APPLICABLE = {"blocking_shading": "a calibration dataset images one heliostat: it has no neighbours to block or shade it"}
 MISSING_TEXT = {
     "sunshape": "a wider sun shape", "slope_error": "slope error (small-scale mirror roughness)",
     "tracking": "a tracking error (kinematic offsets of the heliostat's axes)",
@@ -143,69 +142,134 @@ class Diagnosis:
         self.scene, self.effects, self.train, self.heldout = scene, effects, train, heldout
         self.max_effects = max_effects
         self.settings = FitSettings(**{**vars(settings), "loss": "shape"})
+        self.tried, self.skipped = candidates(effects, scene.heliostat.n_facets)
+        self.candidate = {c.label: c for c in self.tried}
+        self.fits: dict[frozenset, tuple[float, FitResult]] = {}
 
-    def heldout_error(self, effects: dict) -> tuple[float, FitResult]:
-        """(mean held-out misplaced flux, the fit) of an effect list fitted on the train split."""
-        result = fit_effects(self.scene, effects, self.train, self.settings)
+    def effects_with(self, labels) -> dict:
+        """The model's effect list with the candidates `labels` applied."""
+        out = {e: dict(p or {}) for e, p in self.effects.items()}
+        for label in labels:
+            c = self.candidate[label]
+            out[c.effect] = dict(c.params)
+        return out
+
+    def compatible(self, labels) -> bool:
+        """Whether the candidates change different effects (two changes of one effect exclude each other)."""
+        effects = [self.candidate[label].effect for label in labels]
+        return len(set(effects)) == len(effects)
+
+    def fitted(self, labels) -> tuple[float, FitResult]:
+        """(held-out misplaced flux, the fit) of the model with the candidates `labels`, fitted on the
+        train split. Nested: the fit starts from the best fit of one candidate fewer (lowest training
+        loss) and keeps that start, the added candidate at its neutral values, when it ends with a
+        higher training loss (beyond ROUNDING): adding a candidate never raises the training loss."""
+        key = frozenset(labels)
+        if key in self.fits:
+            return self.fits[key]
+        effects = self.effects_with(key)
+        if not key:
+            result = fit_effects(self.scene, effects, self.train, self.settings)
+        else:
+            base, added = min(((self.fitted(key - {label})[1], label) for label in key),
+                              key=lambda pair: pair[0].history[-1])
+            result = fit_effects(self.scene, effects, self.train, self.settings, start=base)
+            kept = self._embedded(base, key, added)
+            if kept is not None and result.history[-1] > base.history[-1] * (1.0 + ROUNDING):
+                result = kept
         with torch.no_grad():
             pred, lost = self.scene.simulate(result.effects, result.tensors, self.heldout.azimuth_deg,
                                              self.heldout.elevation_deg, with_lost=True)
-        return float(misplaced_flux(pred, self.heldout.images, lost).mean()), result
+        self.fits[key] = (float(misplaced_flux(pred, self.heldout.images, lost).mean()), result)
+        log.info("model + %s: held-out error %.4f", " + ".join(sorted(key)) or "nothing", self.fits[key][0])
+        return self.fits[key]
 
-    def candidates(self) -> tuple[list[str], list[dict]]:
-        """(effects to try, not tested with reasons) for this model and heliostat."""
-        tried, skipped = [], []
-        for name in REGISTRY:
-            if name in self.effects:
-                continue
-            if name in NOT_APPLICABLE:
-                skipped.append({"effect": name, "reason": NOT_APPLICABLE[name]})
-            elif name == "canting" and self.scene.heliostat.n_facets == 1:
-                skipped.append({"effect": name, "reason": "one facet: its tilt is a tracking error"})
-            else:
-                tried.append(name)
-        return tried, skipped
+    def _embedded(self, base: FitResult, key: frozenset, added: str) -> FitResult | None:
+        """The fit `base` as a fit of the model with the candidates `key`: the `added` candidate at
+        its neutral values (None when it has none: a switched sun shape)."""
+        c = self.candidate[added]
+        if c.neutral is None:
+            return None
+        effects = {e: dict(p) for e, p in base.effects.items()}
+        effects[c.effect] = dict(c.params) if c.effect in TENSORS else dict(c.neutral)
+        zeros, _ = initial_tensors(self.effects_with(key), self.scene.heliostat)
+        tensors = {**zeros, **base.tensors}
+        return FitResult(effects, tensors, list(base.history), fitted_parameters(self.effects_with(key)))
+
+    def error(self, labels) -> float:
+        return self.fitted(labels)[0]
+
+    def select(self) -> list[str]:
+        """The candidates the measurements need (best subset, module doc), in the order a forward
+        path adds them."""
+        names = [c.label for c in self.tried if REGISTRY[c.effect].identifiable]
+        chosen: tuple = ()
+        for k in range(1, self.max_effects + 1):
+            subsets = [s for s in itertools.combinations(names, k) if self.compatible(s)]
+            needed = [s for s in subsets
+                      if k == 1 or all(is_meaningful(self.error(set(s) - {m}), self.error(s)) for m in s)]
+            if not needed:
+                break
+            best = min(needed, key=self.error)
+            if not is_meaningful(self.error(chosen), self.error(best)):
+                break
+            chosen = best
+        order: list[str] = []
+        while len(order) < len(chosen):
+            order.append(min((n for n in chosen if n not in order), key=lambda n: self.error([*order, n])))
+        return order
 
     def rank(self) -> tuple[float, FitResult, list[dict], list[dict]]:
         """(held-out error of the model, the model's fit, ranking best first, effects not tested).
 
-        The ranking comes from stepwise selection over the identifiable candidates (module doc):
-        the selected effects first, in the order of a forward path (each entry's before/after is
-        the held-out error without and with it, the effects above it included), then the rest,
-        each added alone, by that cut, the unidentifiable scales last. Every entry also carries
-        `reduction_alone`: the cut when it is the only effect added."""
-        tried, skipped = self.candidates()
-        scores: dict[frozenset, tuple[float, FitResult]] = {}
-
-        def score(names) -> float:
-            key = frozenset(names)
-            if key not in scores:
-                scores[key] = self.heldout_error({**self.effects, **{n: dict(CANDIDATES[n]) for n in names}})
-                log.info("model + %s: held-out error %.4f", "+".join(sorted(key)) or "nothing", scores[key][0])
-            return scores[key][0]
-
-        before = score(())
-        alone = {n: 1.0 - score([n]) / max(before, 1e-30) for n in tried}
-        identifiable = [n for n in tried if REGISTRY[n].identifiable]
-        selected = sorted(stepwise(identifiable, score, self.max_effects), key=lambda n: -alone[n])
-        ranking = []
-        for k, name in enumerate(selected):
-            ranking.append(self._entry(name, selected[:k], score, scores, meaningful=True))
-        rest = [self._entry(n, [], score, scores, meaningful=False) for n in tried if n not in selected]
+        The selected candidates first, in forward order (each entry's before/after is the held-out
+        error without and with it, the candidates above it included), then the rest, each added
+        alone, by that cut, the unidentifiable scales last. Every entry also carries
+        `reduction_alone` (the cut when it is the only change) and `confounded_with`."""
+        before = self.error(())
+        selected = self.select()
+        ranking = [self._entry(n, selected[:k], meaningful=True) for k, n in enumerate(selected)]
+        rest = [self._entry(c.label, [], meaningful=False) for c in self.tried if c.label not in selected]
         rest.sort(key=lambda r: (not r["identifiable"], -r["relative_reduction"]))
         ranking += rest
         for r in ranking:
-            r["reduction_alone"] = alone[r["effect"]]
-        return before, scores[frozenset()][1], ranking, skipped
+            r["reduction_alone"] = 1.0 - self.error([r["effect"]]) / max(before, 1e-30)
+            r["confounded_with"] = self.confounded(r["effect"])
+        return before, self.fitted(())[1], ranking, self.skipped
 
-    def _entry(self, name: str, base: list[str], score, scores: dict, meaningful: bool) -> dict:
-        """One ranking entry: `name` added to the model plus the effects `base`, fitted and scored."""
-        before, after = score(base), score([*base, name])
-        fit = scores[frozenset([*base, name])][1]
-        own = {k.split(".", 1)[1]: v for k, v in fit.fitted_values().items() if k.startswith(name + ".")}
-        return {"effect": name, "fitted": _summarised(own), "added_to": list(base), "heldout_error_before": before,
-                "heldout_error_after": after, "relative_reduction": 1.0 - after / max(before, 1e-30),
-                "identifiable": REGISTRY[name].identifiable, "meaningful": meaningful}
+    def confounded(self, label: str) -> list[dict]:
+        """Candidates that explain the same residual as `label`: each alone cuts the held-out error
+        meaningfully, to much the same error (within CONFOUNDED_RATIO of each other), and fitted
+        together they do no meaningfully better than the better one alone. With the measurement
+        that separates them."""
+        before, mine = self.error(()), self.error([label])
+        if not is_meaningful(before, mine):
+            return []
+        out = []
+        for c in self.tried:
+            other = c.label
+            if other == label or not self.compatible([label, other]) or not REGISTRY[c.effect].identifiable:
+                continue
+            theirs = self.error([other])
+            if not is_meaningful(before, theirs) or max(theirs, mine) > CONFOUNDED_RATIO * min(theirs, mine):
+                continue
+            if frozenset([label, other]) in self.fits and is_meaningful(min(mine, theirs), self.error([label, other])):
+                continue
+            out.append({"effect": other, "relative_reduction": 1.0 - theirs / max(before, 1e-30),
+                        "separated_by": separating(self.candidate[label].effect, c.effect)})
+        return out
+
+    def _entry(self, name: str, base: list[str], meaningful: bool) -> dict:
+        """One ranking entry: candidate `name` added to the model plus the candidates `base`."""
+        before, after = self.error(base), self.error([*base, name])
+        c = self.candidate[name]
+        fit = self.fitted([*base, name])[1]
+        own = {k.split(".", 1)[1]: v for k, v in fit.fitted_values().items() if k.startswith(c.effect + ".")}
+        return {"effect": name, "changes": c.effect, "change": c.change, "fitted": _summarised(own),
+                "added_to": list(base), "heldout_error_before": before, "heldout_error_after": after,
+                "relative_reduction": 1.0 - after / max(before, 1e-30),
+                "identifiable": REGISTRY[c.effect].identifiable, "meaningful": meaningful,
+                "config": config_line(c, fit)}
 
 
 def is_meaningful(before: float, after: float) -> bool:
@@ -213,35 +277,14 @@ def is_meaningful(before: float, after: float) -> bool:
     return after <= (1.0 - THRESHOLD) * before and before - after >= ABSOLUTE_FLOOR
 
 
-def stepwise(names: list[str], score, max_effects: int = 2) -> list[str]:
-    """Stepwise selection of the effects that the measurements need, in the order added.
-
-    Forward: add the candidate whose joint fit with the effects selected so far has the lowest
-    held-out error, while that cut is meaningful. Backward, after each addition: drop an earlier
-    effect whose removal no longer costs a meaningful error (the newcomer explains what it
-    explained: a flexible surface that absorbed part of a tracking error is dropped once tracking
-    is in). Fitting one candidate at a time cannot do this: with two effects missing, the one that
-    mimics both partly wins alone. `score(names)` is the held-out error of the model plus `names`.
-    At most `max_effects` are selected (each stage fits every remaining candidate jointly with
-    the selected ones: the cost grows with it); the loop names the rest in the next revision.
-    """
-    selected: list[str] = []
-    for _ in range(2 * len(names)):  # each effect can enter and leave; bounds a (rare) cycle
-        if len(selected) >= max_effects:
-            break
-        trials = {n: score([*selected, n]) for n in names if n not in selected}
-        best = min(trials, key=trials.get, default=None)
-        if best is None or not is_meaningful(score(selected), trials[best]):
-            break
-        selected.append(best)
-        while len(selected) >= 2:
-            full = score(selected)
-            without = {n: score([m for m in selected if m != n]) for n in selected[:-1]}
-            weakest = min(without, key=without.get)
-            if is_meaningful(without[weakest], full):
-                break
-            selected.remove(weakest)
-    return selected
+def config_line(candidate: Candidate, fit: FitResult) -> str:
+    """The line to paste under `model.effects` in config.yaml: the candidate's fitted scalars at
+    their values, "fit" for the heliostat's canting and surface (the physics models fit those)."""
+    values, params = fit.fitted_values(), {}
+    for k, v in candidate.params.items():
+        value = values.get(f"{candidate.effect}.{k}", v) if v == FIT else v
+        params[k] = v if isinstance(value, list) else (round(value, 4) if isinstance(value, float) else value)
+    return f"{candidate.effect}: {{{', '.join(f'{k}: {v}' for k, v in params.items())}}}"
 
 
 def _summarised(values: dict) -> dict:
@@ -258,26 +301,46 @@ def _summarised(values: dict) -> dict:
 
 
 def verdict(ranking: list[dict], summary: dict) -> str:
-    """One plain-language paragraph: what is missing, the evidence, and how much fitting it helps."""
+    """One plain-language paragraph: what is missing or off, the evidence, how much fitting it
+    helps, what it is confounded with and how to tell them apart, implausible fitted values, and
+    the config line to paste."""
     if not ranking:
         return "No effect could be tested: the model contains every registry effect that applies here."
     meaningful = [r for r in ranking if r["meaningful"]]
     if not meaningful:
         best = ranking[0]
-        return (f"No missing effect found: no effect absent from the model cuts the held-out error (misplaced flux "
+        change = (f"cuts it by {best['relative_reduction']:.0%}" if best["relative_reduction"] > 0
+                  else "does not lower it")
+        return (f"No missing effect found: no change to the model cuts the held-out error (misplaced flux "
                 f"{best['heldout_error_before']:.3f}) by {THRESHOLD:.0%} or more; the best, "
-                f"{best['effect'].replace('_', ' ')}, cuts it by {best['relative_reduction']:.0%}. The model explains "
-                f"the measurements as far as the registry's effects can tell.")
+                f"{_words(best)}, {change}. The model explains the measurements as far as the registry's effects "
+                "can tell.")
     top = meaningful[0]
-    evidence = SIGNATURE_TEXT[top["effect"]].format(**summary)
-    text = (f"The model lacks {MISSING_TEXT[top['effect']]}: {evidence}; "
-            f"fitting {top['effect'].replace('_', ' ')} cuts the held-out error by {top['relative_reduction']:.0%} "
+    effect = top["changes"]
+    evidence = SIGNATURE_TEXT[effect].format(**summary)
+    if top["change"] == "add":
+        lacks = f"The model lacks {MISSING_TEXT[effect]}"
+    elif top["change"] == "switch":
+        lacks = f"The model's sun is not the one it assumes: a {top['effect'].split(': ')[1]} sun fits better"
+    else:
+        lacks = f"The model's fixed {effect.replace('_', ' ')} values are off ({top['effect']})"
+    text = (f"{lacks}: {evidence}; fitting it cuts the held-out error by {top['relative_reduction']:.0%} "
             f"(misplaced flux {top['heldout_error_before']:.3f} -> {top['heldout_error_after']:.3f}).")
     if len(meaningful) > 1:
-        others = ", ".join(f"{r['effect'].replace('_', ' ')} ({r['relative_reduction']:.0%})" for r in meaningful[1:])
-        text += (f" Also missing, each added to the effects before it: {others}. Add the first, rerun, "
-                 "and look again.")
-    return text
+        others = ", ".join(f"{_words(r)} ({r['relative_reduction']:.0%})" for r in meaningful[1:])
+        text += f" Also needed, each added to the changes before it: {others}."
+    for r in meaningful:
+        for c in r["confounded_with"]:
+            text += (f" {_words(r).capitalize()} and {c['effect'].replace('_', ' ')} ({c['relative_reduction']:.0%} "
+                     f"alone) explain the same residual on these images: {c['separated_by']} would tell them apart.")
+        for flag in implausible({f"{r['changes']}.{k}": v for k, v in r["fitted"].items()}):
+            text += f" The fitted {flag} is implausible: it likely stands in for another effect."
+    lines = "; ".join(f"`{r['config']}`" for r in meaningful)
+    return text + f" To add it, put under model.effects in config.yaml: {lines}; rerun, and look again."
+
+
+def _words(entry: dict) -> str:
+    return entry["effect"].replace("_", " ")
 
 
 def summarise(sig: dict[str, np.ndarray]) -> dict:
@@ -310,17 +373,22 @@ def read_ledger(path: str | os.PathLike) -> list[dict]:
 def update_ledger(path: str | os.PathLike, dataset_hash: str, effects: dict, error: float) -> list[dict]:
     """Record the held-out error of this model revision in the ledger at `path` (JSON list, kept
     across runs: not a rule output) and return the revisions on the same measurements, oldest
-    first. A revision is keyed by the hash of the model effect list; a rerun replaces its entry."""
+    first, the newest marked `current`. A rerun of the newest revision (same model effect list)
+    replaces it; any other model, one tried before included (going back), is a new revision."""
     entries = read_ledger(path)
     key = model_hash(effects)
     same = [e for e in entries if e["dataset_hash"] == dataset_hash]
-    entry = next((e for e in same if e["model_hash"] == key), None)
-    if entry is None:
+    if same and same[-1]["model_hash"] == key:
+        entry = same[-1]
+    else:
         entry = {"revision": len(same) + 1, "model_hash": key, "dataset_hash": dataset_hash, "model_effects": effects}
         entries.append(entry)
+        same.append(entry)
     entry["heldout_error"] = error
+    for e in same:
+        e["current"] = e is entry
     write_text_atomic(path, json.dumps(entries, indent=1))
-    return [e for e in entries if e["dataset_hash"] == dataset_hash]
+    return same
 
 
 def _measurements(ds, index: np.ndarray, scale: float, device: str | torch.device = "cpu") -> Measurements:
@@ -364,6 +432,9 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     slant = float(np.linalg.norm(np.subtract(ds.attrs["target_center_m"], heliostat.position.cpu().numpy())))
     sig = signatures(fit_scene, pred, everything.images, slant)
     summary = summarise(sig)
+    if ds.attrs.get("per_image_normalised"):  # each image divided by its own peak: no absolute energy
+        sig.pop("energy_ratio")
+        summary["ratio"] = None
     ledger = update_ledger(ledger_path, str(ds.attrs.get("config_hash", Path(dataset_path).stem)), effects, before)
     result = {
         "dataset": ds.attrs.get("dataset", Path(dataset_path).stem),
@@ -372,10 +443,13 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
         "error_measure": ERROR_MEASURE,
         "threshold": {"relative_reduction": THRESHOLD, "absolute_reduction": ABSOLUTE_FLOOR},
         "heldout_error": before,
+        "model_fitted": _summarised(model.fitted_values()),
         "ranking": ranking,
         "not_tested": skipped,
         "signatures": {"rms_centroid_offset_mrad": summary["centroid"], "median_width_ratio": summary["width_ratio"],
                        "median_energy_ratio": summary["ratio"], "median_energy_outside_core": summary["outside"],
+                       "note": ("images each normalised to their own peak: no energy ratio between measured and "
+                                "predicted flux" if summary["ratio"] is None else ""),
                        "per_image": {"azimuth_deg": ds.azimuth_deg.tolist(), "elevation_deg": ds.elevation_deg.tolist(),
                                      "split": ds.split.tolist(),
                                      **{k: np.round(v, 5).tolist() for k, v in sig.items()}}},

@@ -60,25 +60,28 @@ def plot_ranking(result: dict, path) -> None:
 
 
 def plot_residuals(result: dict, ds, pred: np.ndarray, meas: np.ndarray, error: np.ndarray, path, n: int = 4) -> None:
-    """Measured, model and difference images at the n sun positions the model fits worst."""
+    """Measured, model and predicted - measured (the evaluate grid's sign) at the n sun positions the
+    model fits worst: one colour scale for all images, one for all differences, with colour bars."""
     import matplotlib.pyplot as plt
 
     worst = np.argsort(error)[::-1][:n]
-    fig, axes = plt.subplots(3, len(worst), figsize=(2.6 * len(worst), 7.4), squeeze=False)
+    peak = max(float(meas[worst].max()), float(pred[worst].max()), 1e-30)
+    diff = pred[worst] - meas[worst]
+    span = max(float(np.abs(diff).max()), 1e-30)
+    fig, axes = plt.subplots(3, len(worst), figsize=(2.6 * len(worst) + 0.8, 7.4), squeeze=False)
     for col, i in enumerate(worst):
-        peak = max(float(meas[i].max()), float(pred[i].max()), 1e-30)
-        diff = meas[i] - pred[i]
-        for row, (image, cmap, vmin) in enumerate(((meas[i], "inferno", 0), (pred[i], "inferno", 0),
-                                                   (diff, "RdBu_r", -np.abs(diff).max()))):
+        for row, (image, cmap, lo, hi) in enumerate(((meas[i], "inferno", 0, peak), (pred[i], "inferno", 0, peak),
+                                                     (diff[col], "RdBu_r", -span, span))):
             ax = axes[row, col]
-            ax.imshow(image, cmap=cmap, vmin=vmin, vmax=peak if row < 2 else np.abs(diff).max())
+            shown = ax.imshow(image, cmap=cmap, vmin=lo, vmax=hi)
             ax.set_xticks([])
             ax.set_yticks([])
-        axes[0, col].set_title(f"az {ds.azimuth_deg[i]:.0f}, el {ds.elevation_deg[i]:.0f}\nmisplaced {error[i]:.3f}",
-                               fontsize=8)
-    for row, label in enumerate(("measured", "model", "measured - model")):
+            if col == len(worst) - 1:
+                fig.colorbar(shown, ax=axes[row, :].tolist(), shrink=0.8, label="flux / training max")
+        axes[0, col].set_title(f"{ds.split[i]}, az {ds.azimuth_deg[i]:.0f}°, el {ds.elevation_deg[i]:.0f}°\n"
+                               f"misplaced {error[i]:.3f}", fontsize=8)
+    for row, label in enumerate(("measured", "model", "predicted − measured")):
         axes[row, 0].set_ylabel(label)
-    fig.tight_layout()
     save_figure(fig, path)
 
 
@@ -90,6 +93,11 @@ def plot_ledger(result: dict, path) -> None:
     fig, ax = plt.subplots(figsize=(6, 3.2))
     x = [e["revision"] for e in ledger]
     ax.plot(x, [e["heldout_error"] for e in ledger], "o-")
+    current = [e for e in ledger if e.get("current")]
+    ax.plot([e["revision"] for e in current], [e["heldout_error"] for e in current], "o", color="tab:red",
+            markersize=9, label="current model")
+    if current:
+        ax.legend(fontsize=7)
     for e in ledger:
         label = ", ".join(sorted(e["model_effects"])) or "(no effects)"
         ax.annotate(textwrap.fill(label, 28), (e["revision"], e["heldout_error"]), fontsize=6,

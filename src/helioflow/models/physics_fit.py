@@ -351,12 +351,14 @@ class FitSettings:
 
 def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSettings = FitSettings(),
                 progress: bool = False, label: str = "fit", finish: Scene | None = None,
-                checkpoint: str | os.PathLike | None = None) -> FitResult:
+                checkpoint: str | os.PathLike | None = None, start: FitResult | None = None) -> FitResult:
     """Fit every "fit" parameter of `effects` to the measured spots; see the module docstring.
     `finish`: the scene the model predicts with, when it differs from `scene` (a dataset traced
     with rays is predicted with kernels); heliostat tensors are fitted on its trace linearised in
     them (module docstring), scalars alone on `scene`. `checkpoint`: a file that keeps the fit's
-    state after each stage, so that a fit stopped midway resumes from it (`FitCheckpoint`)."""
+    state after each stage, so that a fit stopped midway resumes from it (`FitCheckpoint`).
+    `start`: the fit of a smaller model (a nested fit): its tensors and fitted scalars are the
+    start of the same tensors and parameters here, instead of zeros and defaults."""
     effects = {e: dict(p or {}) for e, p in effects.items()}
     pairs = fitted_parameters(effects)
     linear = [p for p in pairs if p in SCALES or p in OFFSETS]
@@ -366,10 +368,18 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
     for e, k in pairs:  # start values (module docstring): spreads at their default with tensors, else
         p = REGISTRY[e].parameter(k)  # (almost) absent; a linear scalar at its default
         if (e, k) in spread:
-            start = p.default if tensors and isinstance(p.default, float) else SEARCH_FLOOR
-            effects[e][k] = min(max(start, p.lower or SEARCH_FLOOR, SEARCH_FLOOR), p.upper or SEARCH_CEILING)
+            initial = p.default if tensors and isinstance(p.default, float) else SEARCH_FLOOR
+            effects[e][k] = min(max(initial, p.lower or SEARCH_FLOOR, SEARCH_FLOOR), p.upper or SEARCH_CEILING)
         elif (e, k) in linear:
             effects[e][k] = p.default
+    if start is not None:
+        for k, v in start.tensors.items():
+            if k in tensors:
+                tensors[k] = v.detach().to(tensors[k]).clone()
+        for e, k in pairs:
+            value = (start.effects.get(e) or {}).get(k)
+            if isinstance(value, (int, float)) and not isinstance(value, bool):
+                effects[e][k] = float(value)
     target = normalised(data.images, settings.loss, 1.0)
     resume = FitCheckpoint(checkpoint, LINEARISED, scene, effects, data, settings, finish)
     exact = finish or scene

@@ -1,0 +1,276 @@
+"""An independent world for testing inversions: a plain numpy Monte Carlo of a real heliostat
+(PAINT's AA39 at the Jülich tower, geometry from tests/data/paint) that writes PAINT folders
+(8-bit PNGs of the whole target, calibration-properties.json per image) for `source: paint`.
+
+It shares no code with helioflow's tracer, kinematics, sun sampling or camera model: rotations,
+sun shape (Buie 2003 / Gaussian), slope errors, facet tilts, the surface bump, the reflection, the
+target intersection and the image are all written here, from their definitions. Only reading the
+JSON files and WGS84 -> ENU come from helioflow (a conversion, not physics a fit inverts).
+
+Effects (`world(...)` keywords), with the magnitudes a real heliostat has:
+    tracking_mrad=(d1, d2)      offsets of the two joint angles (first about east, second about
+                                the rotated up axis; the "juelich" mount)
+    sun=("buie", csr) | ("gaussian", sigma_mrad) | ("pillbox", half_angle_mrad)
+    slope_mrad=s                Gaussian slope error, std per axis of the surface normal's tilt
+    canting_mrad=(F, 2) array   facet tilts about each facet's width and height axes
+    bump=(facet, height_mm, width_m)  a Gaussian bump on one facet (the local surface error)
+    camera=(background, blur_px)      background as a fraction of the peak, blur std in pixels of
+                                      a 64 x 64 image of the target (4x that of the 256 x 256 PNG)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from helioflow.data.paint import Tower
+from helioflow.physics.geometry import wgs84_to_enu
+
+PAINT = Path(__file__).resolve().parent / "data" / "paint"
+HELIOSTAT = "AA39"
+PNG_SIDE = 256
+LATITUDE_DEG, LONGITUDE_DEG = 50.9134, 6.3878  # Jülich
+BUIE_DISC_MRAD, BUIE_EDGE_MRAD = 4.65, 43.6
+
+
+@dataclass
+class World:
+    """What the Monte Carlo puts into the images (module docstring)."""
+
+    tracking_mrad: tuple[float, float] = (0.0, 0.0)
+    sun: tuple = ("gaussian", 2.51)  # ~ the Buie sun of CSR 0.1's RMS width per axis
+    slope_mrad: float = 0.0
+    canting_mrad: np.ndarray | None = None
+    bump: tuple[int, float, float] | None = None
+    camera: tuple[float, float] = (0.0, 0.0)
+    target: str = "solar_tower_juelich_upper"
+    truth: dict = field(default_factory=dict)
+
+
+def rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    """(3, 3) right-handed rotation by `angle` (rad) about the unit `axis` (Rodrigues)."""
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * k @ k
+
+
+def sun_vector(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
+    """Unit vector towards the sun (ENU); azimuth 0 = south, +90 = east."""
+    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+    return np.array([math.cos(el) * math.sin(az), -math.cos(el) * math.cos(az), math.sin(el)])
+
+
+def calibration_suns(n: int, seed: int) -> list[tuple[float, float]]:
+    """n sun positions (azimuth, elevation deg) of calibrations spread over a year at Jülich: random
+    days and daytime hours, the sun at least 15 deg high (declination and hour angle from the
+    textbook approximation; only the spread of positions matters here)."""
+    rng = np.random.default_rng(seed)
+    lat = math.radians(LATITUDE_DEG)
+    suns = []
+    while len(suns) < n:
+        day, hour = rng.uniform(0, 365), rng.uniform(7.0, 17.0)
+        decl = math.radians(-23.44) * math.cos(2 * math.pi * (day + 10) / 365)
+        h = math.radians(15.0 * (hour - 12.0))
+        sin_el = math.sin(lat) * math.sin(decl) + math.cos(lat) * math.cos(decl) * math.cos(h)
+        el = math.asin(sin_el)
+        # azimuth from south, positive towards east (morning: hour angle < 0)
+        from_north = math.degrees(math.atan2(-math.cos(decl) * math.sin(h), math.sin(decl) * math.cos(lat)
+                                             - math.cos(decl) * math.sin(lat) * math.cos(h)))
+        az = (180.0 - from_north + 180.0) % 360.0 - 180.0  # from north, clockwise -> 0 = south, +90 = east
+        if math.degrees(el) >= 15.0:
+            suns.append((round(az, 4), round(math.degrees(el), 4)))
+    return suns
+
+
+def buie_angles(csr: float, n: int, rng: np.random.Generator) -> np.ndarray:
+    """(n,) angles (rad) from the sun centre drawn from the Buie (2003) profile with this CSR."""
+    theta = np.linspace(0.0, BUIE_EDGE_MRAD, 200_001)
+    chi = csr
+    kappa = 0.9 * math.log(13.5 * chi) * chi ** -0.3
+    gamma = 2.2 * math.log(0.52 * chi) * chi ** 0.43 - 0.1
+    phi = np.where(theta <= BUIE_DISC_MRAD, np.cos(0.326 * theta) / np.cos(0.308 * theta),
+                   math.exp(kappa) * np.maximum(theta, 1e-9) ** gamma)
+    pdf = phi * theta  # per unit angle: the ring's circumference
+    cdf = np.concatenate(([0.0], np.cumsum(0.5 * (pdf[1:] + pdf[:-1]) * np.diff(theta))))
+    return np.interp(rng.uniform(0, cdf[-1], n), cdf, theta) * 1e-3
+
+
+def sun_deviations(sun: tuple, n: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, 2) angular deviations (rad) of incoming rays from the sun centre."""
+    kind, value = sun
+    if kind == "gaussian":
+        return rng.normal(0.0, value * 1e-3, (n, 2))
+    if kind == "buie":
+        radius = buie_angles(value, n, rng)
+    elif kind == "pillbox":
+        radius = value * 1e-3 * np.sqrt(rng.uniform(0, 1, n))
+    else:
+        raise ValueError(kind)
+    angle = rng.uniform(0, 2 * math.pi, n)
+    return np.stack((radius * np.cos(angle), radius * np.sin(angle)), -1)
+
+
+def perpendicular_axes(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors perpendicular to the unit vector d and to each other."""
+    a = np.cross(d, [0.0, 0.0, 1.0])
+    if np.linalg.norm(a) < 1e-6:
+        a = np.cross(d, [1.0, 0.0, 0.0])
+    a /= np.linalg.norm(a)
+    return a, np.cross(d, a)
+
+
+class Scene:
+    """The heliostat and the target in ENU, read from the PAINT files."""
+
+    def __init__(self, target: str):
+        tower = Tower(PAINT / "tower-measurements.json")
+        self.tower = tower
+        props = json.loads((PAINT / HELIOSTAT / "heliostat-properties.json").read_text())
+        self.position = tower.enu(props["heliostat_position"])
+        facets = props["facet_properties"]["facets"]
+        # facet vectors in the heliostat frame (right, up, normal); PAINT's (e, n, u) are exactly these
+        self.centre = np.array([f["translation_vector"] for f in facets], float)
+        self.centre[:, 2] = 0.0  # the mirror on the pivot: the ideal heliostat aims the pivot (data/paint.py)
+        self.half_e = np.array([f["canting_e"] for f in facets], float)
+        self.half_n = np.array([f["canting_n"] for f in facets], float)
+        normal = np.cross(self.half_e, self.half_n)
+        self.normal = normal / np.linalg.norm(normal, axis=-1, keepdims=True)
+        plane = tower.target(target, PAINT / "tower-measurements.json")
+        self.target = plane
+        # the importer's axes: right from upper_left to upper_right, up along the sides
+        corners = {c: tower.enu(tower.data[target]["coordinates"][c])
+                   for c in ("upper_left", "upper_right", "lower_left", "lower_right")}
+        right = 0.5 * ((corners["upper_right"] - corners["upper_left"]) + (corners["lower_right"] - corners["lower_left"]))
+        up = 0.5 * ((corners["upper_left"] - corners["lower_left"]) + (corners["upper_right"] - corners["lower_right"]))
+        self.right, self.up = right / np.linalg.norm(right), up / np.linalg.norm(up)
+
+    def mirror_rotation(self, sun: np.ndarray, tracking_mrad: tuple[float, float]) -> np.ndarray:
+        """(3, 3) heliostat frame (right, up, normal) -> ENU: the joints set so that the mirror
+        normal bisects the sun and the aim point, then offset by the tracking errors."""
+        to_aim = self.target.center - self.position
+        n = sun + to_aim / np.linalg.norm(to_aim)
+        n /= np.linalg.norm(n)
+        east, up = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+        rest = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # columns: east, up, south
+        # n = R_east(a1) R_up(a2) south:  (sin a2, -cos a2 cos a1, -cos a2 sin a1)
+        a2 = math.asin(np.clip(n[0], -1, 1))
+        a1 = math.atan2(-n[2], -n[1])
+        a1 += tracking_mrad[0] * 1e-3
+        a2 += tracking_mrad[1] * 1e-3
+        r = rotation(east, a1) @ rotation(up, a2)
+        return r @ rest
+
+
+def trace_image(scene: Scene, world: World, azimuth_deg: float, elevation_deg: float, rays: int,
+                rng: np.random.Generator) -> np.ndarray:
+    """(256, 256) flux image of the whole target (rows top-down, columns right) for one sun."""
+    sun = sun_vector(azimuth_deg, elevation_deg)
+    frame = scene.mirror_rotation(sun, world.tracking_mrad)
+    n_facets = len(scene.centre)
+    facet = rng.integers(0, n_facets, rays)
+    u, v = rng.uniform(-1, 1, (2, rays))
+    # facet axes and normal in the heliostat frame, tilted by the canting errors
+    e_axis = scene.half_e / np.linalg.norm(scene.half_e, axis=-1, keepdims=True)
+    n_axis = scene.half_n / np.linalg.norm(scene.half_n, axis=-1, keepdims=True)
+    normals = scene.normal.copy()
+    if world.canting_mrad is not None:
+        for f in range(n_facets):
+            tilt = rotation(e_axis[f], world.canting_mrad[f, 0] * 1e-3) @ rotation(n_axis[f], world.canting_mrad[f, 1] * 1e-3)
+            normals[f] = tilt @ normals[f]
+    points = scene.centre[facet] + u[:, None] * scene.half_e[facet] + v[:, None] * scene.half_n[facet]
+    normal = normals[facet]
+    if world.bump is not None:
+        f0, height_mm, width_m = world.bump
+        local = np.stack((u * np.linalg.norm(scene.half_e[facet], axis=-1),
+                          v * np.linalg.norm(scene.half_n[facet], axis=-1)), -1)  # m on the facet
+        g = height_mm * 1e-3 * np.exp(-(local ** 2).sum(-1) / (2 * width_m ** 2)) * (facet == f0)
+        slope = -local / width_m ** 2 * g[:, None]  # dh/dx, dh/dy
+        normal = normal - slope[:, :1] * e_axis[facet] - slope[:, 1:] * n_axis[facet]
+        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    if world.slope_mrad:
+        tilt = rng.normal(0.0, world.slope_mrad * 1e-3, (rays, 2))
+        normal = normal + tilt[:, :1] * e_axis[facet] + tilt[:, 1:] * n_axis[facet]
+        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    points = points @ frame.T + scene.position
+    normal = normal @ frame.T
+    a, b = perpendicular_axes(sun)
+    dev = sun_deviations(world.sun, rays, rng)
+    towards_sun = sun[None] + dev[:, :1] * a + dev[:, 1:] * b
+    towards_sun /= np.linalg.norm(towards_sun, axis=-1, keepdims=True)
+    incoming = -towards_sun
+    cos_in = -(incoming * normal).sum(-1)
+    reflected = incoming + 2 * cos_in[:, None] * normal
+    t = ((scene.target.center - points) @ scene.target.normal) / (reflected @ scene.target.normal)
+    hit = points + t[:, None] * reflected - scene.target.center
+    x, y = hit @ scene.right, hit @ scene.up
+    weight = np.clip(cos_in, 0, None)  # the facet area's projection towards the sun
+    col = (x / scene.target.width + 0.5) * PNG_SIDE
+    row = (0.5 - y / scene.target.height) * PNG_SIDE
+    image, _, _ = np.histogram2d(row, col, bins=PNG_SIDE, range=[[0, PNG_SIDE], [0, PNG_SIDE]], weights=weight)
+    return image
+
+
+def camera(image: np.ndarray, background: float, blur_px64: float) -> np.ndarray:
+    """The camera: Gaussian blur (std in 64-px pixels), a background of this share of the peak."""
+    if blur_px64 > 0:
+        sigma = blur_px64 * PNG_SIDE / 64
+        r = int(4 * sigma) + 1
+        k = np.exp(-np.arange(-r, r + 1) ** 2 / (2 * sigma ** 2))
+        k /= k.sum()
+        padded = np.pad(image, r)
+        image = np.apply_along_axis(lambda m: np.convolve(m, k, "valid"), 0, padded)
+        image = np.apply_along_axis(lambda m: np.convolve(m, k, "valid"), 1, image)
+    return image + background * image.max()
+
+
+def enu_to_wgs84(tower: Tower, enu: np.ndarray) -> list[float]:
+    """Inverse of the tower's WGS84 -> ENU, by Newton steps (for the focal-spot centroid field)."""
+    lat0, lon0, alt0 = tower.origin
+    guess = np.array([lat0 + enu[1] / 111_200.0, lon0 + enu[0] / (111_200.0 * math.cos(math.radians(lat0))),
+                      alt0 + enu[2]])
+    for _ in range(3):
+        err = enu - wgs84_to_enu(*guess, lat0, lon0, alt0)
+        guess += [err[1] / 111_200.0, err[0] / (111_200.0 * math.cos(math.radians(lat0))), err[2]]
+    return guess.tolist()
+
+
+def write_paint_folder(folder: Path, world: World, n_images: int = 40, rays: int = 1_000_000,
+                       seed: int = 0) -> list[tuple[float, float]]:
+    """A PAINT folder (tower-measurements.json, AA39/heliostat-properties.json and, per image,
+    <id>-calibration-properties.json and <id>-flux.png) of `n_images` calibrations under `world`;
+    returns their sun positions (azimuth, elevation deg)."""
+    folder = Path(folder)
+    (folder / HELIOSTAT).mkdir(parents=True, exist_ok=True)
+    shutil.copy(PAINT / "tower-measurements.json", folder / "tower-measurements.json")
+    shutil.copy(PAINT / HELIOSTAT / "heliostat-properties.json", folder / HELIOSTAT / "heliostat-properties.json")
+    scene = Scene(world.target)
+    rng = np.random.default_rng(seed)
+    suns = calibration_suns(n_images, seed)
+    for i, (az, el) in enumerate(suns):
+        flux = camera(trace_image(scene, world, az, el, rays, rng), *world.camera)
+        png = np.round(flux / flux.max() * 255).astype(np.uint8)
+        mid = str(100_000 + i)
+        Image.fromarray(png, mode="L").save(folder / HELIOSTAT / f"{mid}-flux.png")
+        rows, cols = np.indices(png.shape) + 0.5
+        w = png.astype(float)
+        x = ((cols * w).sum() / w.sum() / PNG_SIDE - 0.5) * scene.target.width
+        y = (0.5 - (rows * w).sum() / w.sum() / PNG_SIDE) * scene.target.height
+        centroid = enu_to_wgs84(scene.tower, scene.target.center + x * scene.right + y * scene.up)
+        (folder / HELIOSTAT / f"{mid}-calibration-properties.json").write_text(json.dumps({
+            "motor_position": {"axis_1_motor_position": 0, "axis_2_motor_position": 0},
+            "target_name": world.target, "sun_elevation": el, "sun_azimuth": az,
+            "focal_spot": {"HeliOS": centroid, "UTIS": centroid}}))
+    return suns
+
+
+DEMO = World(tracking_mrad=(1.2, -0.9), camera=(0.03, 1.5))  # the PAINT demo: workflow/variants/paint_world_demo.yaml
+
+if __name__ == "__main__":  # python tests/paint_world.py examples/paint_world
+    import sys
+
+    write_paint_folder(Path(sys.argv[1]), DEMO, n_images=40, rays=1_000_000, seed=7)
