@@ -8,7 +8,14 @@ import pytest
 import torch
 
 from helioflow.evaluate.candidates import candidates, implausible, separating
-from helioflow.evaluate.diagnose import ABSOLUTE_FLOOR, ROUNDING, THRESHOLD, Diagnosis, misplaced_flux, update_ledger
+from helioflow.evaluate.diagnose import (
+    ABSOLUTE_FLOOR,
+    ROUNDING,
+    THRESHOLD,
+    Diagnosis,
+    misplaced_flux,
+    update_ledger,
+)
 from helioflow.models.physics_fit import FitSettings, Measurements, Scene
 from helioflow.physics.heliostat import Heliostat, ideal_heliostat, without_planes
 from helioflow.physics.target import Target

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from .. import __version__
+from ..device import resolve_device
 from ..errors import DataError
 from ..physics.effects import Physics, resolve
 from ..physics.geometry import normalize
@@ -20,7 +21,6 @@ from ..physics.raytrace import trace
 from ..physics.sun import rms_radius
 from ..physics.target import Target
 from .hdf5 import CalibrationDataset, write_dataset
-from ..device import resolve_device
 from .splits import assign_splits
 from .surfaces import read_heliostat
 

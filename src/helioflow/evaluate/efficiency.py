@@ -8,8 +8,8 @@ import json
 import os
 from pathlib import Path
 
-from ..workflow import parse_model
 from ..io import write_text_atomic
+from ..workflow import parse_model
 from .figures import plt, save_figure
 
 SPLITS_SHOWN = ("interpolation", "extrapolation")

@@ -46,6 +46,7 @@ from ..data.surfaces import true_heliostat
 from ..data.synthetic import config_hash
 from ..device import resolve_device
 from ..errors import ConfigError, DataError
+from ..io import write_text_atomic
 from ..models.registry import load_model
 from ..physics.carry import carry_spot, commanded_normal, core_spread, equivalent_sun
 from ..physics.effects import FIT, REGISTRY, resolve
@@ -54,7 +55,6 @@ from ..physics.geometry import azimuth_elevation, normalize, sun_vector
 from ..physics.heliostat import Heliostat
 from ..physics.raytrace import Optics, trace
 from ..physics.target import Target
-from ..io import write_text_atomic
 from .field_figure import plot_field_maps
 from .field_metrics import map_metrics, mean_metrics, spot_metrics
 

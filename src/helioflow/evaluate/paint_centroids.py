@@ -23,10 +23,10 @@ import torch
 from ..data.hdf5 import read_dataset
 from ..data.surfaces import read_heliostat
 from ..errors import DataError
+from ..io import write_text_atomic
 from ..physics.effects import resolve
 from ..physics.raytrace import trace
 from ..physics.target import Target, centroid
-from ..io import write_text_atomic
 
 DEFAULT_SUNSHAPE = {"kind": "pillbox", "half_angle_mrad": 4.65}
 SHAPE_THRESHOLD = 0.1  # spot moments use the pixels above this fraction of the image's peak

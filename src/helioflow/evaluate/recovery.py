@@ -32,10 +32,10 @@ import torch
 from ..data.hdf5 import SPLITS, read_dataset
 from ..data.surfaces import read_heliostat
 from ..errors import DataError
+from ..io import write_text_atomic
 from ..models.registry import load_model
 from ..physics.geometry import sun_vector
 from ..physics.heliostat import bspline_basis, orientation
-from ..io import write_text_atomic
 from .evaluation import scored_images
 from .metrics import psnr
 

@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
-from ..data.surfaces import read_heliostat
 from ..checks import check_ranges, check_types
+from ..data.surfaces import read_heliostat
 from ..physics.effects import FIT, REGISTRY, check_effects
 from ..physics.heliostat import Heliostat
 from .base import SpotModel, TrainingData
