@@ -61,10 +61,13 @@ def plot_ranking(result: dict, path) -> None:
 
 def plot_residuals(result: dict, ds, pred: np.ndarray, meas: np.ndarray, error: np.ndarray, path, n: int = 4) -> None:
     """Measured, model and predicted - measured (the evaluate grid's sign) at the n sun positions the
-    model fits worst: one colour scale for all images, one for all differences, with colour bars."""
+    model fits worst, each image divided by its mean (the shapes the misplaced flux compares): one
+    colour scale for all images, one for all differences, with colour bars."""
     import matplotlib.pyplot as plt
 
     worst = np.argsort(error)[::-1][:n]
+    pixels = meas.shape[-1] * meas.shape[-2]
+    meas, pred = (x / np.maximum(x.sum((-2, -1), keepdims=True), 1e-30) * pixels for x in (meas, pred))
     peak = max(float(meas[worst].max()), float(pred[worst].max()), 1e-30)
     diff = pred[worst] - meas[worst]
     span = max(float(np.abs(diff).max()), 1e-30)
@@ -77,7 +80,7 @@ def plot_residuals(result: dict, ds, pred: np.ndarray, meas: np.ndarray, error: 
             ax.set_xticks([])
             ax.set_yticks([])
             if col == len(worst) - 1:
-                fig.colorbar(shown, ax=axes[row, :].tolist(), shrink=0.8, label="flux / training max")
+                fig.colorbar(shown, ax=axes[row, :].tolist(), shrink=0.8, label="flux / its mean")
         axes[0, col].set_title(f"{ds.split[i]}, az {ds.azimuth_deg[i]:.0f}°, el {ds.elevation_deg[i]:.0f}°\n"
                                f"misplaced {error[i]:.3f}", fontsize=8)
     for row, label in enumerate(("measured", "model", "predicted − measured")):
