@@ -209,7 +209,7 @@ BAD = {
     "not a PNG": (lambda d, c: Image.fromarray(np.uint8(_blob(0) * 255)).save(d / "spot_1.png", format="JPEG"),
                   r"spot_1\.png is a JPEG image; expected PNG"),
     "black image": (lambda d, c: Image.fromarray(np.zeros(SHAPE, np.uint16)).save(d / "spot_2.png"),
-                    r"line 4 \(image spot_2\): .*spot_2\.png is black \(all zero\): it shows no focal spot"),
+                    r"line 4 \(image spot_2\): .*spot_2\.png: the image is black \(all zero\): it shows no focal spot"),
     "no file column": (lambda d, c: _rewrite(c, lambda r: r[0].__setitem__(0, "image")),
                        r"sun\.csv: no column 'file' \(columns found: 'image', 'azimuth_deg', 'elevation_deg'\)"),
     "no sun columns": (lambda d, c: _rewrite(c, lambda r: [row.__delitem__(slice(1, 3)) for row in r]),

@@ -5,12 +5,12 @@ import math
 import numpy as np
 import pytest
 import torch
+from conftest import make_heliostat
 
 from helioflow.physics.geometry import normalize, sun_vector
 from helioflow.physics.heliostat import (
     MOUNTS,
     REST_FRAME,
-    Heliostat,
     bspline_basis,
     canting_focal_distance,
     facet_frames,
@@ -25,11 +25,6 @@ from helioflow.physics.heliostat import (
 )
 
 DT = torch.float64
-
-
-def make_heliostat(rows=2, cols=2, width=1.0, height=1.0, gap=0.02, focal=None, canting=None,
-                   position=(0.0, 0.0, 0.0), mount="az_el", n_control=6, dtype=DT) -> Heliostat:
-    return ideal_heliostat(rows, cols, width, height, gap, position, mount, canting, focal, n_control, dtype)
 
 
 def _upper_hemisphere(n: int, seed: int) -> torch.Tensor:

@@ -10,9 +10,9 @@ import math
 import numpy as np
 import pytest
 import torch
+from conftest import make_heliostat
 
 from helioflow.physics.geometry import normalize, sun_vector
-from helioflow.physics.heliostat import Heliostat, ideal_heliostat
 from helioflow.physics.raytrace import Optics, trace
 from helioflow.physics.reference import reference_trace
 from helioflow.physics.sun import SunShape
@@ -21,11 +21,6 @@ from helioflow.physics.target import Target, centroid
 DT = torch.float64
 U = np.array([0.0, -math.cos(math.radians(30.0)), math.sin(math.radians(30.0))])
 NEAR_NORMAL = (0.0, math.radians(34.0))  # sun azimuth, elevation (rad): incidence 2 deg
-
-
-def make_heliostat(rows=2, cols=2, width=1.0, height=1.0, gap=0.02, focal=None, canting=None,
-                   position=(0.0, 0.0, 0.0), mount="az_el", n_control=6, dtype=DT) -> Heliostat:
-    return ideal_heliostat(rows, cols, width, height, gap, position, mount, canting, focal, n_control, dtype)
 
 
 def _sun(az: float, el: float) -> tuple[torch.Tensor, torch.Tensor]:

@@ -5,26 +5,10 @@ rule diagnose:
         heliostat=lambda wc: heliostat_path(config, wc.dataset),
     output:
         diagnosis=f"{RESULTS}/diagnosis/{{dataset}}.json",
-        signatures=report(
-            f"{RESULTS}/figures/diagnosis/{{dataset}}_signatures.png",
-            caption="../report/diagnosis_signatures.rst",
-            category="Diagnosis",
-        ),
-        ranking=report(
-            f"{RESULTS}/figures/diagnosis/{{dataset}}_ranking.png",
-            caption="../report/diagnosis_ranking.rst",
-            category="Diagnosis",
-        ),
-        residuals=report(
-            f"{RESULTS}/figures/diagnosis/{{dataset}}_residuals.png",
-            caption="../report/diagnosis_residuals.rst",
-            category="Diagnosis",
-        ),
-        ledger=report(
-            f"{RESULTS}/figures/diagnosis/{{dataset}}_ledger.png",
-            caption="../report/diagnosis_ledger.rst",
-            category="Diagnosis",
-        ),
+        signatures=f"{RESULTS}/figures/diagnosis/{{dataset}}_signatures.png",
+        ranking=f"{RESULTS}/figures/diagnosis/{{dataset}}_ranking.png",
+        residuals=f"{RESULTS}/figures/diagnosis/{{dataset}}_residuals.png",
+        ledger=f"{RESULTS}/figures/diagnosis/{{dataset}}_ledger.png",
     params:
         torch_threads=TORCH_THREADS,
         spec=lambda wc: json.dumps(diagnose_params(config, wc.dataset)),

@@ -10,7 +10,7 @@ rule compose_field:
         **compose_field_inputs(config),
     output:
         flux=f"{RESULTS}/field/flux.h5",
-        figure=report(f"{RESULTS}/field/flux.png", caption="../report/field.rst", category="Field"),
+        figure=f"{RESULTS}/field/flux.png",
         metrics=f"{RESULTS}/field/metrics.json",
     params:
         torch_threads=TORCH_THREADS,

@@ -27,16 +27,8 @@ rule evaluate:
     output:
         metrics=f"{RESULTS}/metrics/{{dataset}}/{{model}}.json",
         per_image=f"{RESULTS}/metrics/{{dataset}}/{{model}}.csv",
-        grid=report(
-            f"{RESULTS}/figures/{{dataset}}/{{model}}_samples.png",
-            caption="../report/samples.rst",
-            category="Networks",
-        ),
-        psnr=report(
-            f"{RESULTS}/figures/{{dataset}}/{{model}}_psnr.png",
-            caption="../report/psnr.rst",
-            category="Networks",
-        ),
+        grid=f"{RESULTS}/figures/{{dataset}}/{{model}}_samples.png",
+        psnr=f"{RESULTS}/figures/{{dataset}}/{{model}}_psnr.png",
     params:
         torch_threads=SHORT_JOB_THREADS,
         spec=lambda wc: json.dumps(evaluate_params(config)),
@@ -78,7 +70,7 @@ rule table:
         metrics=metrics_paths(config),
     output:
         csv=f"{RESULTS}/tables/table1.csv",
-        markdown=report(f"{RESULTS}/tables/table1.md", caption="../report/table.rst", category="Networks"),
+        markdown=f"{RESULTS}/tables/table1.md",
     params:
         networks=list(config.get("networks") or {}),
     log:
@@ -95,11 +87,7 @@ rule data_efficiency:
     input:
         metrics=efficiency_metrics(config),
     output:
-        figure=report(
-            f"{RESULTS}/figures/data_efficiency.png",
-            caption="../report/data_efficiency.rst",
-            category="Networks",
-        ),
+        figure=f"{RESULTS}/figures/data_efficiency.png",
         csv=f"{RESULTS}/tables/data_efficiency.csv",
     params:
         train_images=(config.get("data_efficiency") or {}).get("train_images", []),

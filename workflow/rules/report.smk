@@ -8,7 +8,7 @@ rule report:
     input:
         **report_inputs(config),
     output:
-        html=report(report_path(config), caption="../report/report.rst", category="Report"),
+        html=report_path(config),
     params:
         inputs=json.dumps(report_inputs(config)),
         benchmarks=f"{RESULTS}/benchmarks",

@@ -24,11 +24,7 @@ rule plot_dataset:
     input:
         dataset=f"{RESULTS}/datasets/{{dataset}}.h5",
     output:
-        figure=report(
-            f"{RESULTS}/figures/datasets/{{dataset}}.png",
-            caption="../report/dataset_samples.rst",
-            category="Datasets",
-        ),
+        figure=f"{RESULTS}/figures/datasets/{{dataset}}.png",
     params:
         samples=12,
     log:

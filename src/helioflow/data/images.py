@@ -67,6 +67,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError, HelioflowError
+from .paint import PlaneTarget, read_grey_png, read_heliostat_properties, resample_area, split_labels
 
 log = logging.getLogger(__name__)
 
@@ -266,31 +267,6 @@ def read_rows(csv_path: str | os.PathLike, images_dir: str | os.PathLike,
 # --- the images ------------------------------------------------------------------------------------
 
 
-def read_png(path: Path, where: str) -> tuple[np.ndarray, float]:
-    """(H, W) float64 grey levels in [0, 1] of a PNG (16-bit / 65535, else converted to 8-bit grey / 255)
-    and the share of its pixels at full scale; DataError naming `where` (the CSV line) and the file."""
-    from PIL import Image, UnidentifiedImageError  # Pillow: a dependency of matplotlib and scikit-image
-
-    if not path.is_file():
-        raise DataError(f"{where}: image {path} does not exist")
-    try:
-        with Image.open(path) as img:
-            img.load()
-            if img.format != "PNG":
-                raise DataError(f"{where}: {path} is a {img.format} image; expected PNG")
-            sixteen = img.mode.startswith("I")
-            array = np.asarray(img if sixteen else img.convert("L"), dtype=np.float64)
-    except (OSError, SyntaxError, ValueError, UnidentifiedImageError) as exc:
-        raise DataError(f"{where}: {path} is not a readable PNG image (corrupt or truncated?): {exc}") from None
-    if array.ndim != 2 or min(array.shape) < 2:
-        raise DataError(f"{where}: {path} has shape {array.shape}; expected a 2-D image of at least 2 x 2 pixels")
-    full = 65535.0 if sixteen else 255.0
-    if array.max() <= array.min():
-        level = "black (all zero)" if array.max() == 0 else f"grey level {array.max():g} in every pixel (saturated?)"
-        raise DataError(f"{where}: {path} is {level}: it shows no focal spot; remove its row or repair the image")
-    return array / full, float((array >= full).mean())
-
-
 # --- the heliostat -----------------------------------------------------------------------------------
 
 
@@ -321,7 +297,6 @@ def read_geometry(spec: dict):
     (`heliostat_geometry`) or from `heliostat_properties` around `origin_wgs84`."""
     from ..config import HeliostatSpec
     from ..physics.heliostat import ideal_heliostat
-    from .paint import read_heliostat_properties
 
     name = spec["heliostat"]
     if spec.get("heliostat_geometry") is not None:
@@ -397,7 +372,6 @@ def import_images(spec: dict, dataset_path: str | os.PathLike | None = None,
 
 def target_plane(target: dict, where: str = "target"):
     """paint.PlaneTarget of a dataset's `target` section (normal made unit)."""
-    from .paint import PlaneTarget
 
     normal = np.asarray(target["normal"], dtype=float)
     length = np.linalg.norm(normal)
@@ -412,7 +386,6 @@ def build_dataset(spec: dict, geometry):
     from .. import __version__
     from ..physics.heliostat import canting_focal_distance
     from .hdf5 import CalibrationDataset
-    from .paint import resample_area, split_labels
     from .splits import assign_splits
     from .synthetic import CONVENTIONS, config_hash
 
@@ -433,7 +406,7 @@ def build_dataset(spec: dict, geometry):
     raw, saturated, shape = [], [], None
     for r in rows:
         where = f"{csv_path} line {r.line} (image {r.id})"
-        image, full = read_png(r.path, where)
+        image, full = read_grey_png(r.path, where, "remove its row or repair the image")
         if shape is None:
             shape = image.shape
         elif image.shape != shape:

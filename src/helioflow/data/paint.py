@@ -218,27 +218,37 @@ def read_measurement(path: Path, tower: Tower) -> Measurement:
 
 
 def read_flux_png(path: Path) -> np.ndarray:
-    """(H, W) float64 grey levels in [0, 1] of a greyscale PNG; DataError if missing or corrupt."""
-    from PIL import Image, UnidentifiedImageError  # Pillow: a dependency of matplotlib and scikit-image
-
+    """(H, W) float64 grey levels in [0, 1] of a PAINT flux PNG; DataError if missing or corrupt."""
     if not path.is_file():
         raise DataError(f"{path} does not exist (each <id>{CALIBRATION_SUFFIX} needs its <id>-flux.png)")
+    return read_grey_png(path, str(path), "remove this measurement (its calibration-properties.json and PNG) "
+                                          "or repair the image")[0]
+
+
+def read_grey_png(path: Path, where: str, remedy: str) -> tuple[np.ndarray, float]:
+    """(H, W) float64 grey levels in [0, 1] of an existing PNG (16-bit / 65535, else converted to 8-bit
+    grey / 255) and the share of its pixels at full scale. One DataError starting with `where` (the
+    file, or the CSV line that names it) when it is no readable 2-D PNG or shows nothing; `remedy`
+    ends the message of an image without a spot."""
+    from PIL import Image, UnidentifiedImageError  # Pillow: a dependency of matplotlib and scikit-image
+
+    at = where if where == str(path) else f"{where}: {path}"
     try:
         with Image.open(path) as img:
             img.load()
             if img.format != "PNG":
-                raise DataError(f"{path}: expected a PNG image, found {img.format}")
+                raise DataError(f"{at} is a {img.format} image; expected PNG")
             sixteen = img.mode.startswith("I")
             array = np.asarray(img if sixteen else img.convert("L"), dtype=np.float64)
     except (OSError, SyntaxError, ValueError, UnidentifiedImageError) as exc:
-        raise DataError(f"{path}: not a readable PNG image (corrupt or truncated?): {exc}") from None
+        raise DataError(f"{at} is not a readable PNG image (corrupt or truncated?): {exc}") from None
     if array.ndim != 2 or min(array.shape) < 2:
-        raise DataError(f"{path}: image has shape {array.shape}, expected a 2-D greyscale image")
+        raise DataError(f"{at} has shape {array.shape}; expected a 2-D image of at least 2 x 2 pixels")
+    full = 65535.0 if sixteen else 255.0
     if array.max() <= array.min():
         level = "black (all zero)" if array.max() == 0 else f"grey level {array.max():g} in every pixel (saturated?)"
-        raise DataError(f"{path}: the image is {level}: it shows no focal spot; remove this measurement "
-                        "(its calibration-properties.json and PNG) or repair the image")
-    return array / (65535.0 if sixteen else 255.0)
+        raise DataError(f"{at}: the image is {level}: it shows no focal spot; {remedy}")
+    return array / full, float((array >= full).mean())
 
 
 def resample_area(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
