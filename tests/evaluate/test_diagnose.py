@@ -86,9 +86,8 @@ def test_a_hidden_effect_is_ranked_first_and_fitting_it_halves_the_heldout_error
 @pytest.mark.slow
 def test_two_hidden_effects_take_the_top_two_places():
     """Tracking and canting: one moves the whole spot, the other the facets' images apart. Fitted
-    alone, the flexible surface mimics both in part and wins; stepwise selection drops it once
-    both are in (the selection may hold three for that: surface, tracking, then canting, after
-    which the surface is dropped), and adding the two cuts the held-out error by at least half."""
+    alone, the flexible surface mimics both in part and wins; the best pair, both needed, beats it,
+    and adding the two cuts the held-out error by at least half."""
     world = {"sunshape": BUIE, "tracking": {"axis2_offset_mrad": 2.5}, "canting": {}}
     before, _, ranking, _ = diagnosis(world, {"sunshape": BUIE}, max_effects=3).rank()
     summary = [(r["effect"], round(r["relative_reduction"], 3), r["meaningful"]) for r in ranking]
