@@ -67,7 +67,14 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError, HelioflowError
-from .paint import PlaneTarget, read_grey_png, read_heliostat_properties, resample_area, split_labels
+from .paint import (
+    PlaneTarget,
+    read_grey_png,
+    read_heliostat_properties,
+    relative_flux_attrs,
+    resample_area,
+    split_labels,
+)
 
 log = logging.getLogger(__name__)
 
@@ -383,11 +390,8 @@ def target_plane(target: dict, where: str = "target"):
 
 def build_dataset(spec: dict, geometry):
     """The CalibrationDataset of the images a spec names (resampled, each divided by its peak)."""
-    from .. import __version__
-    from ..physics.heliostat import canting_focal_distance
     from .hdf5 import CalibrationDataset
     from .splits import assign_splits
-    from .synthetic import CONVENTIONS, config_hash
 
     csv_path = Path(spec["csv"])
     rows, sun_from = read_rows(csv_path, spec["images_dir"], spec.get("site"))
@@ -448,23 +452,10 @@ def build_dataset(spec: dict, geometry):
         "site": spec.get("site"),
         "units": {"images": "relative (grey level / full scale, each image divided by its own peak)",
                   "angles": "deg", "lengths": "m"},
-        "conventions": CONVENTIONS.replace("flux in W/m^2 for the DNI in attribute dni_w_m2",
-                                           "relative flux (see units)"),
-        "per_image_normalised": True,
-        "dni_w_m2": float(spec.get("dni_w_m2", 1000.0)),
-        "source_image_shape": list(shape),
+        **relative_flux_attrs(geometry, plane, spec.get("dni_w_m2", 1000.0), shape, [r.id for r in rows], spec),
         "target_name": TARGET_NAME,
-        "target_center_m": plane.center.tolist(),
-        "target_normal": plane.normal.tolist(),
-        "target_size_m": [plane.width, plane.height],
         "targets": [TARGET_NAME],
         "mixed_targets": False,
-        "heliostat_position_m": position.tolist(),
-        "heliostat_mount": geometry.mount,
-        "canting_focal_distance_m": canting_focal_distance(geometry),
-        "measurement_ids": [r.id for r in rows],
-        "config_hash": config_hash(spec),
-        "helioflow_version": __version__,
     }
     extras = {
         "measurement_id": np.array([r.id for r in rows]),

@@ -460,6 +460,28 @@ def import_paint(
     return ds
 
 
+def relative_flux_attrs(geometry: Heliostat, target: PlaneTarget, dni_w_m2: float, source_shape, ids: list[str],
+                        params: dict) -> dict:
+    """The dataset attributes that imported camera images (PAINT, own images) share: relative flux, each
+    image normalised to its own peak; the target and heliostat geometry; the ids; the parameters' hash."""
+    return {
+        "conventions": CONVENTIONS.replace("flux in W/m^2 for the DNI in attribute dni_w_m2",
+                                           "relative flux (see units)"),
+        "per_image_normalised": True,
+        "dni_w_m2": float(dni_w_m2),
+        "source_image_shape": list(source_shape),
+        "target_center_m": np.asarray(target.center).tolist(),
+        "target_normal": np.asarray(target.normal).tolist(),
+        "target_size_m": [target.width, target.height],
+        "heliostat_position_m": geometry.position.cpu().numpy().tolist(),
+        "heliostat_mount": geometry.mount,
+        "canting_focal_distance_m": canting_focal_distance(geometry),
+        "measurement_ids": ids,
+        "config_hash": config_hash(params),
+        "helioflow_version": __version__,
+    }
+
+
 def build_dataset(measurements: list[Measurement], tower: Tower, geometry: Heliostat,
                   resolution: tuple[int, int], holdout: list[str], folder: Path, dataset: str, heliostat: str,
                   spec: dict) -> CalibrationDataset:
@@ -470,7 +492,6 @@ def build_dataset(measurements: list[Measurement], tower: Tower, geometry: Helio
     names = [p.name for p in planes]
     main = max(sorted(set(names)), key=names.count)
     ref = planes[names.index(main)]
-    position = geometry.position.numpy()
     mixed = len(set(names)) > 1
     if mixed:
         log.warning("%s: measurements on %d targets (%s); root attributes target_* describe %s, "
@@ -485,23 +506,10 @@ def build_dataset(measurements: list[Measurement], tower: Tower, geometry: Helio
         "paint_dir": spec["paint_dir"],
         "units": {"images": "relative (PNG grey level / 255, each image normalised to its peak)",
                   "angles": "deg", "lengths": "m"},
-        "conventions": CONVENTIONS.replace("flux in W/m^2 for the DNI in attribute dni_w_m2",
-                                           "relative flux (see units)"),
-        "per_image_normalised": True,
-        "dni_w_m2": spec["dni_w_m2"],
-        "source_image_shape": list(raw[0].shape),
+        **relative_flux_attrs(geometry, ref, spec["dni_w_m2"], raw[0].shape, [m.id for m in measurements], params),
         "target_name": main,
-        "target_center_m": ref.center.tolist(),
-        "target_normal": ref.normal.tolist(),
-        "target_size_m": [ref.width, ref.height],
         "targets": sorted(set(names)),
         "mixed_targets": mixed,
-        "heliostat_position_m": position.tolist(),
-        "heliostat_mount": geometry.mount,
-        "canting_focal_distance_m": canting_focal_distance(geometry),
-        "measurement_ids": [m.id for m in measurements],
-        "config_hash": config_hash(params),
-        "helioflow_version": __version__,
     }
     extras = {
         "measurement_id": np.array([m.id for m in measurements]),
