@@ -4,7 +4,7 @@ compose_field each resolve the device their rule's spec (or --device) names, and
 On a machine without CUDA the resolver is replaced by one that records what it was asked for and
 answers "cpu": the rules then run for real on the CPU, and the record shows that the configured
 device got through the command line and the spec to the function that places the tensors.
-compose_field's test is in tests/evaluate/test_field_maps.py (it reuses that file's field).
+compose_field's test is in tests/field/test_field_maps.py (it reuses that file's field).
 """
 
 import json
@@ -14,17 +14,17 @@ import pytest
 import torch
 
 import helioflow.data.synthetic
-import helioflow.evaluate.diagnose
+import helioflow.diagnosis.diagnose
 import helioflow.models.registry
 from helioflow.cli import main
-from helioflow.config import HeliostatSpec, load_config
-from helioflow.data.surfaces import true_heliostat, write_heliostat
+from helioflow.config import load_config
+from helioflow.data.surfaces import HeliostatSpec, true_heliostat, write_heliostat
 from helioflow.device import resolve_device
 from helioflow.models.registry import load_model
 from helioflow.workflow import diagnose_params, evaluate_params, surfaces_params, trace_params, train_params
 
 TINY = Path(__file__).resolve().parent / "workflow" / "tiny_config.yaml"
-RESOLVING_MODULES = (helioflow.data.synthetic, helioflow.models.registry, helioflow.evaluate.diagnose)
+RESOLVING_MODULES = (helioflow.data.synthetic, helioflow.models.registry, helioflow.diagnosis.diagnose)
 
 
 @pytest.fixture

@@ -39,13 +39,13 @@ import time
 
 import torch
 
-from .config import HeliostatSpec
-from .data.surfaces import true_heliostat
-from .physics.effects import resolve
-from .physics.field import FieldHeliostats, field_flux, flat_receiver
-from .physics.layout import min_spacing, radial_staggered
-from .physics.raytrace import POOL_SIZE, sample_pool, trace
-from .physics.target import Target
+from helioflow.data.surfaces import HeliostatSpec, true_heliostat
+from helioflow.physics.effects import resolve
+from helioflow.physics.field import FieldHeliostats, field_flux, flat_receiver
+from helioflow.physics.layout import min_spacing, radial_staggered
+from helioflow.physics.raytrace import POOL_SIZE, sample_pool, trace
+from helioflow.physics.target import Target
+from helioflow.scoring.metrics import psnr as metric_psnr
 
 SCENE_HELIOSTAT = HeliostatSpec("bench", (0.0, 60.0, 0.0), "az_el", 1, 1, 2.0, 2.0, 0.0, None, None, 6, 0.5, 1.0, 0.0, 1)
 SCENE_EFFECTS = {"sunshape": {"kind": "buie", "csr": 0.1}, "slope_error": {"sigma_mrad": 0.5}, "tracking": {},
@@ -64,10 +64,9 @@ def scene(batch: int = 1):
 
 
 def psnr(image: torch.Tensor, reference: torch.Tensor) -> float:
-    """PSNR (dB) with both images divided by the reference's maximum (data range 1)."""
+    """PSNR (dB, scoring.metrics.psnr) with both images divided by the reference's maximum."""
     scale = reference.max()
-    mse = ((image / scale - reference / scale) ** 2).mean().item()
-    return 10 * math.log10(1.0 / max(mse, 1e-20))
+    return float(metric_psnr((image / scale).numpy(), (reference / scale).numpy()))
 
 
 def _timed(batch: int = 1, **kwargs) -> tuple[torch.Tensor, float]:
@@ -222,14 +221,14 @@ def field(threads: int, sizes: tuple[int, ...] = FIELD_SIZES) -> None:
 
 def fit(dataset: str, heliostat: str, threads: int) -> None:
     """The `fit` benchmark (module docstring)."""
-    from .config import load_config, validate_config
-    from .data.hdf5 import read_dataset
-    from .data.surfaces import read_heliostat
-    from .evaluate.metrics import psnr as split_psnr
-    from .evaluate.recovery import surface_heights
-    from .models.physical import drt_effects
-    from .models.physics_fit import FitSettings, Measurements, _Fitter, dataset_scene, fit_effects
-    from .workflow import model_effects
+    from helioflow.config import load_config, validate_config
+    from helioflow.data.hdf5 import read_dataset
+    from helioflow.data.surfaces import read_heliostat
+    from helioflow.models.physical import drt_effects
+    from helioflow.models.physics_fit import FitSettings, Measurements, _Fitter, fit_effects
+    from helioflow.physics.scene import dataset_scene
+    from helioflow.scoring.recovery import surface_heights
+    from helioflow.workflow import model_effects
 
     torch.set_num_threads(threads)
     ds, true = read_dataset(dataset), read_heliostat(heliostat).to("cpu")
@@ -274,7 +273,7 @@ def fit(dataset: str, heliostat: str, threads: int) -> None:
             images, az, el = split(ds.indices(name_))
             with torch.no_grad():
                 predicted = predicting.simulate(result.effects, result.tensors, az, el, seed=1) / scale
-            scores.append(f"{name_} {float(split_psnr(predicted.numpy(), images.numpy()).mean()):.2f} dB")
+            scores.append(f"{name_} {float(metric_psnr(predicted.numpy(), images.numpy()).mean()):.2f} dB")
         heights = surface_heights(result.tensors["surface"].double())
         error = float((heights - truth).pow(2).mean().sqrt() / truth.pow(2).mean().sqrt())
         print(f"  {name}: {wall:.0f} s, {count[0]} traces, held-out PSNR {', '.join(scores)}, "

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import fields
 
-from .errors import ConfigError
+from helioflow.errors import ConfigError
 
 
 def _is_int(v) -> bool:

@@ -14,8 +14,8 @@ import os
 import sys
 from collections import Counter
 
-from . import workflow
-from .errors import HelioflowError
+from helioflow import workflow
+from helioflow.errors import HelioflowError
 
 
 def _spec(args, params) -> dict:
@@ -23,13 +23,13 @@ def _spec(args, params) -> dict:
         return json.loads(args.spec)
     if args.config is None or args.name is None:
         raise HelioflowError("give --spec JSON, or --config FILE and --name NAME")
-    from .config import load_config
+    from helioflow.config import load_config
 
     return params(workflow.expand_config(load_config(args.config)), args.name)
 
 
 def cmd_recovery(args) -> None:
-    from .evaluate.recovery import recovery, write_recovery
+    from helioflow.scoring.recovery import recovery, write_recovery
 
     if args.output is None:
         print(json.dumps(recovery(args.model, args.heliostat, args.dataset, args.device), indent=1))
@@ -38,8 +38,7 @@ def cmd_recovery(args) -> None:
 
 
 def cmd_surfaces(args) -> None:
-    from .config import HeliostatSpec
-    from .data.surfaces import true_heliostat, write_heliostat
+    from helioflow.data.surfaces import HeliostatSpec, true_heliostat, write_heliostat
 
     spec = HeliostatSpec.from_config(*_split_name(_spec(args, workflow.surfaces_params)))
     write_heliostat(args.output, true_heliostat(spec), spec)
@@ -52,14 +51,14 @@ def _split_name(params: dict) -> tuple[str, dict]:
 
 
 def cmd_trace(args) -> None:
-    from .data.synthetic import trace_dataset
+    from helioflow.data.synthetic import trace_dataset
 
     ds = trace_dataset(_spec(args, workflow.trace_params), args.heliostat, args.output)
     logging.info("wrote %s: %d images of %s", args.output, len(ds.images), ds.images.shape[1:])
 
 
 def cmd_import_paint(args) -> None:
-    from .data.paint import import_paint
+    from helioflow.data.paint import import_paint
 
     if args.paint_dir is not None or args.heliostat is not None:
         if args.paint_dir is None or args.heliostat is None:
@@ -82,7 +81,7 @@ def cmd_import_paint(args) -> None:
 
 
 def cmd_import_images(args) -> None:
-    from .data.images import import_images
+    from helioflow.data.images import import_images
 
     if args.output is None and args.heliostat_output is None:
         raise HelioflowError("give --output (the dataset), --heliostat-output (the geometry) or both")
@@ -98,7 +97,7 @@ def cmd_import_images(args) -> None:
 
 
 def cmd_paint_centroids(args) -> None:
-    from .evaluate.paint_centroids import centroid_check, format_table, write_centroid_check
+    from helioflow.scoring.paint_centroids import centroid_check, format_table, write_centroid_check
 
     rows = centroid_check(args.dataset, args.heliostat)
     print(format_table(rows))
@@ -108,14 +107,14 @@ def cmd_paint_centroids(args) -> None:
 
 
 def cmd_plot_dataset(args) -> None:
-    from .evaluate.figures import plot_dataset_samples
+    from helioflow.data.figures import plot_dataset_samples
 
     plot_dataset_samples(args.dataset, args.output, n=args.samples)
     logging.info("wrote %s", args.output)
 
 
 def cmd_train(args) -> None:
-    from .models.registry import train_network
+    from helioflow.models.registry import train_network
 
     dataset = os.path.splitext(os.path.basename(args.dataset))[0]
     spec = _spec(args, lambda config, model: workflow.train_params(config, dataset, model))
@@ -127,7 +126,7 @@ DIAGNOSIS_FIGURES = ("signatures", "ranking", "residuals", "ledger-figure")
 
 
 def cmd_diagnose(args) -> None:
-    from .evaluate.diagnose import diagnose_dataset
+    from helioflow.diagnosis.diagnose import diagnose_dataset
 
     spec = _spec(args, workflow.diagnose_params)  # --name: the dataset's name in the config
     stem = os.path.splitext(args.output)[0]
@@ -138,7 +137,7 @@ def cmd_diagnose(args) -> None:
 
 
 def cmd_evaluate(args) -> None:
-    from .evaluate.evaluation import evaluate_model
+    from helioflow.scoring.evaluation import evaluate_model
 
     spec = json.loads(args.spec) if args.spec else {}
     result = evaluate_model(args.model, args.dataset, args.metrics, args.per_image, args.grid, args.psnr,
@@ -148,8 +147,8 @@ def cmd_evaluate(args) -> None:
 
 
 def cmd_compose_field(args) -> None:
-    from .config import load_config
-    from .evaluate.field_maps import compose_field
+    from helioflow.config import load_config
+    from helioflow.field.compose import compose_field
 
     if args.spec is not None:
         spec, inputs = json.loads(args.spec), {}
@@ -169,21 +168,21 @@ def cmd_compose_field(args) -> None:
 
 
 def cmd_table(args) -> None:
-    from .evaluate.table import build_table
+    from helioflow.scoring.table import build_table
 
     build_table(args.metrics, args.csv, args.markdown)
     logging.info("wrote %s and %s", args.csv, args.markdown)
 
 
 def cmd_data_efficiency(args) -> None:
-    from .evaluate.efficiency import plot_data_efficiency
+    from helioflow.scoring.efficiency import plot_data_efficiency
 
     plot_data_efficiency(args.metrics, args.figure, args.csv)
     logging.info("wrote %s and %s", args.figure, args.csv)
 
 
 def cmd_leave_one_out(args) -> None:
-    from .evaluate.leave_one_out import leave_one_out
+    from helioflow.scoring.leave_one_out import leave_one_out
 
     inputs = json.loads(args.inputs)
     by_network = {kind: {k.removeprefix(f"{kind}_"): v for k, v in inputs.items() if k.startswith(f"{kind}_")}
@@ -193,7 +192,7 @@ def cmd_leave_one_out(args) -> None:
 
 
 def cmd_report(args) -> None:
-    from .evaluate.report import write_report
+    from helioflow.report.page import write_report
 
     write_report(args.output, json.loads(args.inputs), args.benchmarks, args.experiment)
     logging.info("wrote %s", args.output)

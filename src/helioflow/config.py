@@ -8,14 +8,13 @@ express (a dataset's heliostat exists, effect names and parameters are in the re
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
 
-from .errors import ConfigError
-from .physics.effects import check_effects
-from .workflow import facing
+from helioflow.errors import ConfigError, DataError, HelioflowError
+from helioflow.physics.effects import check_effects
+from helioflow.workflow import facing
 
 SCHEMA_PATH = Path(__file__).resolve().parents[2] / "workflow" / "schemas" / "config.schema.yaml"
 
@@ -138,7 +137,7 @@ def _check_references(config: dict, source: str) -> None:
     check_effects(config["model"].get("effects"), f"{source}: model.effects", allow_fit=True)
     if not any(abs(x) > 0 for x in config["target"]["normal"]):
         raise ConfigError(f"{source}: target.normal = {config['target']['normal']}: expected a non-zero vector")
-    from .models.registry import split_settings
+    from helioflow.models.registry import split_settings
 
     for network, settings in (config.get("networks") or {}).items():
         split_settings(network, settings or {}, config["seed"], where=f"{source}: networks.{network}")
@@ -234,7 +233,7 @@ def _check_field(config: dict, where: str) -> None:
     if field["network"] not in networks:
         raise ConfigError(f"{where}.network = {field['network']!r} is not in networks; "
                           f"networks has {', '.join(networks) or 'none'}")
-    from .models.registry import network_classes
+    from helioflow.models.registry import network_classes
 
     if not network_classes(field["network"])[1].controllable:
         raise ConfigError(f"{where}.network = {field['network']!r} cannot be steered by the sun position; "
@@ -286,8 +285,7 @@ def _check_images_dataset(config: dict, name: str, where: str) -> None:
     or heliostat_properties with origin_wgs84) that sees the target, splits or holdout (not both);
     its folder and CSV exist, the CSV's timestamps have a site, and its heliostat file
     (surfaces/<dataset>.h5) is no other heliostat's."""
-    from .data.images import ERROR_KEYS, TIMESTAMP, check_ideal, read_table
-    from .errors import DataError, HelioflowError
+    from helioflow.data.images import ERROR_KEYS, TIMESTAMP, check_ideal, read_table
 
     ds = config["datasets"][name]
     extra = sorted(((_TRACE_KEYS - {"splits"}) | {"paint_dir", "targets"}) & set(ds))
@@ -339,34 +337,3 @@ def _check_images_dataset(config: dict, name: str, where: str) -> None:
     if TIMESTAMP in columns and not {"azimuth_deg", "elevation_deg"} <= set(columns) and "site" not in ds:
         raise ConfigError(f"{where}: {ds['csv']} gives the sun by {TIMESTAMP}; add site: {{latitude_deg, "
                           "longitude_deg, altitude_m}, where the images were taken")
-
-
-@dataclass(frozen=True)
-class HeliostatSpec:
-    """A heliostat section of config: ideal geometry plus the scale and seed of its errors."""
-
-    name: str
-    position_m: tuple[float, float, float]
-    mount: str
-    rows: int
-    cols: int
-    width_m: float
-    height_m: float
-    gap_m: float
-    canting_focal_distance_m: float | None
-    facet_focal_length_m: float | None
-    control_points: int
-    deformation_mm: float
-    tracking_error_mrad: float
-    canting_error_mrad: float
-    seed: int
-
-    @staticmethod
-    def from_config(name: str, d: dict) -> HeliostatSpec:
-        f = d["facets"]
-        return HeliostatSpec(
-            name, tuple(d["position_m"]), d["mount"], f["rows"], f["cols"], f["width_m"], f["height_m"],
-            f.get("gap_m", 0.0), d.get("canting_focal_distance_m"), d.get("facet_focal_length_m"),
-            d.get("control_points", 6), d.get("deformation_mm", 0.0), d.get("tracking_error_mrad", 0.0),
-            d.get("canting_error_mrad", 0.0), d.get("seed", 0),
-        )

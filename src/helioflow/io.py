@@ -16,7 +16,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from .errors import DataError, OutputError
+from helioflow.errors import DataError, OutputError
 
 
 def write_atomic(path: str | os.PathLike, write: Callable[[Path], None]) -> None:

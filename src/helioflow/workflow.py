@@ -11,7 +11,8 @@ import copy
 import re
 from pathlib import Path
 
-from .errors import ConfigError, DataError
+from helioflow.errors import ConfigError, DataError
+from helioflow.models.names import parse_model
 
 IMPORTED_SOURCES = ("paint", "images")  # datasets imported, not traced (no true heliostat behind them)
 PHYSICS_MODELS = ("raytrace", "drt")  # models that trace the heliostat file (models/physical.py)
@@ -255,7 +256,7 @@ def images_heliostat_params(config: dict, heliostat: str) -> dict:
 def import_images_inputs(config: dict, dataset: str) -> dict:
     """Files rule `import_images` reads: the CSV, every image it lists and a heliostat-properties.json."""
     p = import_images_params(config, dataset)
-    from .data.images import image_files
+    from helioflow.data.images import image_files
 
     files = {"csv": p["csv"], "images": image_files(p["csv"], p["images_dir"])}
     if p.get("heliostat_properties"):
@@ -272,14 +273,6 @@ def images_heliostat_inputs(config: dict, heliostat: str) -> dict:
 def dataset_paths(config: dict) -> list[str]:
     """Every configured dataset file."""
     return [f"{results_dir(config)}/datasets/{d}.h5" for d in config["datasets"]]
-
-
-def parse_model(model: str) -> tuple[str, int | None]:
-    """'cgan' -> ('cgan', None); 'cgan-n25' -> ('cgan', 25): a network trained on 25 train images."""
-    network, sep, count = model.partition("-n")
-    if sep and not count.isdigit():
-        raise ConfigError(f"model name {model!r}: expected <network> or <network>-n<train images>")
-    return network, int(count) if sep else None
 
 
 def models(config: dict) -> list[str]:
@@ -431,7 +424,7 @@ def field_positions(field: dict, template: dict) -> list[list[float]]:
     layout.min_spacing); list: the rows [east, north(, up)] of layout.positions; csv: the rows of
     the file layout.csv (a header row is allowed). Defaults: LAYOUT_DEFAULTS.
     """
-    from .physics import layout as geometry
+    from helioflow.physics import layout as geometry
 
     spec = {**LAYOUT_DEFAULTS, **field["layout"]}
     if spec["kind"] == "list":
@@ -533,7 +526,7 @@ def check_field_geometry(config: dict) -> None:
     mirrors would collide: list and csv layouts; fermat and radial keep their spacing)."""
     import numpy as np
 
-    from .physics.layout import min_spacing
+    from helioflow.physics.layout import min_spacing
 
     field = config["field"]
     heliostats = field_heliostats(config)
@@ -638,7 +631,7 @@ def leave_one_out_ids(dataset: dict) -> list[str]:
     the image ids of an images dataset's CSV; ConfigError naming the folder or CSV when it cannot be
     read or holds fewer than two."""
     if dataset.get("source") == "images":
-        from .data.images import image_ids
+        from helioflow.data.images import image_ids
 
         try:
             ids = image_ids(dataset["csv"])
@@ -647,7 +640,7 @@ def leave_one_out_ids(dataset: dict) -> list[str]:
         if len(ids) < 2:
             raise ConfigError(f"holdout: leave_one_out needs at least two images; {dataset['csv']} has {len(ids)}")
         return ids
-    from .data.paint import measurement_targets
+    from helioflow.data.paint import measurement_targets
 
     try:
         targets = measurement_targets(dataset["paint_dir"], dataset["heliostat"])

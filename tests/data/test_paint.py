@@ -15,8 +15,8 @@ from helioflow.data.hdf5 import read_dataset
 from helioflow.data.paint import import_paint, read_flux_png, resample_area
 from helioflow.data.surfaces import read_heliostat
 from helioflow.errors import DataError
-from helioflow.evaluate.paint_centroids import centroid_check
-from helioflow.physics.target import Target, centroid
+from helioflow.physics.target import Target
+from helioflow.scoring.paint_centroids import centroid_check
 
 PAINT = Path(__file__).resolve().parent / "paint"
 AA39_IDS = ["270398", "271633", "275564", "extra1", "extra2", "extra3"]
@@ -107,7 +107,7 @@ def test_image_centroids_match_paints_utis_centroids(aa39):
     ds, _, _ = aa39
     for i in range(len(ds.images)):
         target = _target(ds, i)
-        measured = centroid(torch.as_tensor(ds.images[i : i + 1], dtype=torch.float64), target)[0].numpy()
+        measured = target.centroid(torch.as_tensor(ds.images[i : i + 1], dtype=torch.float64))[0].numpy()
         utis = target.to_plane(torch.as_tensor(ds.extras["focal_spot_enu_m"][i])).numpy()
         assert np.linalg.norm(measured - utis) < 0.05, (ds.extras["measurement_id"][i], measured, utis)
 
@@ -151,7 +151,7 @@ def test_imported_blob_keeps_its_target_coordinates(paint_copy, tmp_path):
     full = Target(target.center, target.normal, target.width, target.height, (256, 256))
     png = torch.as_tensor(read_flux_png(png_path))[None]
     imported = torch.as_tensor(ds.images[:1], dtype=torch.float64)
-    assert torch.allclose(centroid(imported, target), centroid(png, full), atol=0.002)  # m, < 1/60 pixel
+    assert torch.allclose(target.centroid(imported), full.centroid(png), atol=0.002)  # m, < 1/60 pixel
 
 
 def _edit_json(path: Path, edit) -> None:

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from helioflow.config import HeliostatSpec, load_config
+from helioflow.config import load_config
 from helioflow.data.hdf5 import SPLITS, read_dataset
-from helioflow.data.surfaces import true_heliostat, write_heliostat
+from helioflow.data.surfaces import HeliostatSpec, true_heliostat, write_heliostat
 from helioflow.data.synthetic import MIN_FILL, config_hash, sun_positions, trace_dataset
 from helioflow.errors import DataError
 from helioflow.physics.geometry import normalize, sun_vector

@@ -8,8 +8,9 @@ import torch
 
 from helioflow.errors import ConfigError
 from helioflow.models.physical import PhysicsConfig, drt_effects
-from helioflow.models.physics_fit import FitSettings, Measurements, Scene, _Fitter, blur_levels, fit_effects
+from helioflow.models.physics_fit import FitSettings, Measurements, _Fitter, blur_levels, fit_effects
 from helioflow.physics.heliostat import TRACKING_PARAMETERS, ideal_heliostat, without_planes
+from helioflow.physics.scene import Scene
 from helioflow.physics.target import Target
 
 BUIE = {"kind": "buie", "csr": 0.1}

@@ -6,16 +6,15 @@ import math
 import pytest
 import torch
 
-from helioflow.config import HeliostatSpec
-from helioflow.data.surfaces import true_heliostat
-from helioflow.evaluate.metrics import flux_accuracy
+from helioflow.data.surfaces import HeliostatSpec, true_heliostat
 from helioflow.physics.carry import carry_spot, commanded_normal, core_spread, equivalent_sun
 from helioflow.physics.effects import resolve
 from helioflow.physics.field import FieldHeliostats, field_flux, flat_receiver
 from helioflow.physics.geometry import azimuth_elevation, sun_vector
 from helioflow.physics.raytrace import trace
 from helioflow.physics.sun import SunShape
-from helioflow.physics.target import Target, centroid
+from helioflow.physics.target import Target
+from helioflow.scoring.metrics import flux_accuracy
 
 WORLD = {
     "sunshape": {"kind": "pillbox", "half_angle_mrad": 4.65},
@@ -88,7 +87,7 @@ def test_a_carried_true_spot_matches_the_spot_traced_on_the_receiver(sun_deg):
         float(truth.sum() * receiver.pixel_area), rel=0.01
     )
     # the pointing error is carried: centroids agree to 1 cm (the spot is ~2.5 m wide, 60 m away)
-    offset = centroid(carried[None], receiver) - centroid(truth[None], receiver)
+    offset = receiver.centroid(carried[None]) - receiver.centroid(truth[None])
     assert offset.norm() < 0.01
     assert float(carried.max() / truth.max()) == pytest.approx(1.0, abs=0.05)
 
@@ -107,5 +106,5 @@ def test_the_blur_of_the_longer_path_brings_the_carried_spot_closer(deformation_
 def test_an_ideal_heliostat_lands_on_the_aim_point():
     physics, receiver, target = _scene(tracking_mrad=0.0, deformation_mm=0.0, position=(-30.0, 40.0, 2.0))
     carried, truth, _ = _carried_and_true(physics, receiver, target, (75.0, 30.0), 0.0)
-    assert centroid(carried[None], receiver).norm() < 0.01
-    assert centroid(truth[None], receiver).norm() < 0.01
+    assert receiver.centroid(carried[None]).norm() < 0.01
+    assert receiver.centroid(truth[None]).norm() < 0.01

@@ -23,7 +23,6 @@ from helioflow.physics.layout import (
 )
 from helioflow.physics.raytrace import Optics, trace
 from helioflow.physics.sun import SunShape
-from helioflow.physics.target import centroid
 
 DT = torch.float64
 SQRT3 = math.sqrt(3.0)
@@ -130,7 +129,7 @@ def test_one_heliostat_agrees_with_the_kernel_tracer(sun, position, size):
     power = img.sum().item() * receiver.pixel_area
     assert power == pytest.approx(ref.sum().item() * receiver.pixel_area, rel=2e-4)
     assert power == pytest.approx(result.budget["on_receiver"].item(), rel=1e-12)
-    shift = (centroid(img[None], receiver) - centroid(ref[None], receiver)).norm().item()
+    shift = (receiver.centroid(img[None]) - receiver.centroid(ref[None])).norm().item()
     assert shift < 0.1 * receiver.pixel_size[0]
     psnr = 10 * math.log10(ref.max().item() ** 2 / ((img - ref) ** 2).mean().item())
     assert psnr > 45.0
@@ -159,7 +158,7 @@ def test_point_sun_without_slope_error_deposits_the_mirror_image():
     ref = trace(h, receiver, az, el, optics, rays=4_000_000, cells_per_side=32, seed=0)[0]
     img = field_flux(FieldHeliostats.stack([h], 32), receiver, az, el, optics).flux[0]
     assert img.sum().item() == pytest.approx(ref.sum().item(), rel=1e-9)
-    assert (centroid(img[None], receiver) - centroid(ref[None], receiver)).norm() < 1e-3
+    assert (receiver.centroid(img[None]) - receiver.centroid(ref[None])).norm() < 1e-3
 
 
 # --- shading and blocking: hand-computed cases ----------------------------------------------------------

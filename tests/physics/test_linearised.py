@@ -6,8 +6,8 @@ import math
 import pytest
 import torch
 
-from helioflow.models.physics_fit import LinearisedScene, Scene, effective_tensors
 from helioflow.physics.heliostat import ideal_heliostat, without_planes
+from helioflow.physics.scene import LinearisedScene, Scene, effective_tensors
 from helioflow.physics.target import Target
 
 BUIE = {"kind": "buie", "csr": 0.1}

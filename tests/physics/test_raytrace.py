@@ -16,7 +16,7 @@ from helioflow.physics.geometry import normalize, sun_vector
 from helioflow.physics.raytrace import Optics, trace
 from helioflow.physics.reference import reference_trace
 from helioflow.physics.sun import SunShape
-from helioflow.physics.target import Target, centroid
+from helioflow.physics.target import Target
 
 DT = torch.float64
 U = np.array([0.0, -math.cos(math.radians(30.0)), math.sin(math.radians(30.0))])
@@ -137,7 +137,7 @@ def test_point_sun_spot_centroid_lands_on_the_aim_point(az_deg, el_deg):
     tg = Target.facing(U * 50.0, [3.0, -1.0, 0.5], 8.0, 8.0, (64, 64), dtype=DT)
     img = _image(h, tg, math.radians(az_deg), math.radians(el_deg), Optics(SunShape("point")),
                  rays=50_000, cells_per_side=16, seed=1)
-    c = centroid(img[None], tg)[0]
+    c = tg.centroid(img[None])[0]
     assert c.abs().max().item() < 0.02 * tg.pixel_size[0]
 
 
@@ -150,7 +150,7 @@ def test_spot_follows_an_offset_aim_point_in_image_coordinates():
     aim = tg.center + 0.6 * right + 1.0 * up
     optics = Optics(SunShape("pillbox"))
     img = trace(h, tg, *_sun(*NEAR_NORMAL), optics, rays=200_000, cells_per_side=8, seed=0, aim_point=aim)[0]
-    c = centroid(img[None], tg)[0]
+    c = tg.centroid(img[None])[0]
     torch.testing.assert_close(c, torch.tensor([0.6, 1.0], dtype=DT), atol=0.02 * tg.pixel_size[0], rtol=0)
     row, col = divmod(img.argmax().item(), 64)
     assert row == pytest.approx(32 - 1.0 / tg.pixel_size[1], abs=2)  # above the centre: a top row
@@ -265,7 +265,7 @@ def test_fast_tracer_matches_the_reference_tracer():
     noise_psnr = _psnr(fast, fast + math.sqrt(noise_mse))
     assert mse < 1.5 * noise_mse, f"PSNR {_psnr(fast, ref):.1f} dB, noise-limited {noise_psnr:.1f} dB"
     assert _psnr(fast, ref) > 45.0
-    c = centroid(torch.stack((torch.as_tensor(fast), torch.as_tensor(ref))), tg)
+    c = tg.centroid(torch.stack((torch.as_tensor(fast), torch.as_tensor(ref))))
     assert (c[0] - c[1]).abs().max().item() < 0.05 * tg.pixel_size[0]
     assert c[0].abs().max().item() > 1 * tg.pixel_size[0]  # the errors do move the spot off the aim point
 
@@ -280,7 +280,7 @@ def test_kernel_and_bilinear_splatting_agree(sun):
     bilinear = _image(h, tg, az, el, optics, rays=2_000_000, cells_per_side=32, seed=0)
     kernel = _image(h, tg, az, el, optics, rays=0, splat="kernel", cells_per_side=32)
     assert _psnr(kernel, bilinear) > 35.0
-    c = centroid(torch.stack((kernel, bilinear)), tg)
+    c = tg.centroid(torch.stack((kernel, bilinear)))
     assert (c[0] - c[1]).abs().max().item() < 0.05 * tg.pixel_size[0]
 
 

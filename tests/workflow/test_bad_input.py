@@ -15,13 +15,13 @@ import pytest
 import torch
 import yaml
 
-from helioflow.config import HeliostatSpec, validate_config
+from helioflow.config import validate_config
 from helioflow.data.hdf5 import CalibrationDataset, write_dataset
 from helioflow.data.paint import import_paint
-from helioflow.data.surfaces import true_heliostat, write_heliostat
+from helioflow.data.surfaces import HeliostatSpec, true_heliostat, write_heliostat
 from helioflow.data.synthetic import trace_dataset
+from helioflow.diagnosis.diagnose import update_ledger
 from helioflow.errors import HelioflowError
-from helioflow.evaluate.diagnose import update_ledger
 from helioflow.io import save_torch_atomic, write_text_atomic
 from helioflow.models.registry import load_model
 from helioflow.workflow import check_readable, existing_upstream_files, expand_config, trace_params

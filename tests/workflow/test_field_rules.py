@@ -210,7 +210,7 @@ def test_the_equivalent_sun_is_within_the_default_calibration_scan(default):
     position above the horizon and inside the calibration scan's elevation range."""
     import torch
 
-    from helioflow.evaluate.field_maps import build_scene
+    from helioflow.field.compose import build_scene
     from helioflow.physics.carry import equivalent_sun
     from helioflow.physics.geometry import azimuth_elevation, sun_vector
 

@@ -4,12 +4,12 @@ import pytest
 
 from helioflow.config import load_config
 from helioflow.errors import ConfigError
+from helioflow.models.names import parse_model
 from helioflow.workflow import (
     efficiency_metrics,
     expand_config,
     field_measured,
     models,
-    parse_model,
     report_inputs,
     train_inputs,
     train_params,

@@ -66,8 +66,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataError, HelioflowError
-from .paint import (
+from helioflow.data.paint import (
     PlaneTarget,
     read_grey_png,
     read_heliostat_properties,
@@ -75,6 +74,7 @@ from .paint import (
     resample_area,
     split_labels,
 )
+from helioflow.errors import DataError, HelioflowError
 
 log = logging.getLogger(__name__)
 
@@ -293,7 +293,7 @@ class WGS84Origin:
         self.origin = tuple(float(x) for x in origin)
 
     def enu(self, wgs84) -> np.ndarray:
-        from ..physics.geometry import wgs84_to_enu
+        from helioflow.physics.geometry import wgs84_to_enu
 
         p = np.asarray(wgs84, dtype=float)
         return wgs84_to_enu(p[..., 0], p[..., 1], p[..., 2], *self.origin)
@@ -302,8 +302,8 @@ class WGS84Origin:
 def read_geometry(spec: dict):
     """(the ideal Heliostat (float64), its provenance) of an images dataset's spec: inline
     (`heliostat_geometry`) or from `heliostat_properties` around `origin_wgs84`."""
-    from ..config import HeliostatSpec
-    from ..physics.heliostat import ideal_heliostat
+    from helioflow.data.surfaces import HeliostatSpec
+    from helioflow.physics.heliostat import ideal_heliostat
 
     name = spec["heliostat"]
     if spec.get("heliostat_geometry") is not None:
@@ -356,8 +356,8 @@ def import_images(spec: dict, dataset_path: str | os.PathLike | None = None,
     Returns:
         The dataset written to `dataset_path`, or None when only the geometry was asked for.
     """
-    from .hdf5 import write_dataset
-    from .surfaces import write_heliostat
+    from helioflow.data.hdf5 import write_dataset
+    from helioflow.data.surfaces import write_heliostat
 
     if dataset_path is None and heliostat_path is None:
         raise HelioflowError("import_images: nothing to write; give a dataset path, a heliostat path or both")
@@ -390,8 +390,8 @@ def target_plane(target: dict, where: str = "target"):
 
 def build_dataset(spec: dict, geometry):
     """The CalibrationDataset of the images a spec names (resampled, each divided by its peak)."""
-    from .hdf5 import CalibrationDataset
-    from .splits import assign_splits
+    from helioflow.data.hdf5 import CalibrationDataset
+    from helioflow.data.splits import assign_splits
 
     csv_path = Path(spec["csv"])
     rows, sun_from = read_rows(csv_path, spec["images_dir"], spec.get("site"))

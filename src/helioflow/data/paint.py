@@ -65,13 +65,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import __version__
-from ..errors import DataError, HelioflowError
-from ..physics.geometry import wgs84_to_enu
-from ..physics.heliostat import TRACKING_PARAMETERS, Heliostat, canting_focal_distance
-from .hdf5 import CalibrationDataset, write_dataset
-from .surfaces import write_heliostat
-from .synthetic import CONVENTIONS, config_hash
+from helioflow import __version__
+from helioflow.data.hdf5 import CalibrationDataset, write_dataset
+from helioflow.data.surfaces import write_heliostat
+from helioflow.data.synthetic import CONVENTIONS, config_hash
+from helioflow.errors import DataError, HelioflowError
+from helioflow.physics.geometry import wgs84_to_enu
+from helioflow.physics.heliostat import TRACKING_PARAMETERS, Heliostat, canting_focal_distance
 
 log = logging.getLogger(__name__)
 

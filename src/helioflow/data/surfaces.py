@@ -16,17 +16,47 @@ Layout (schema ``helioflow.heliostat/1``), all in the heliostat frame (right, up
 from __future__ import annotations
 
 import os
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 import torch
 
-from ..config import HeliostatSpec
-from ..errors import DataError
-from ..physics.heliostat import TRACKING_PARAMETERS, Heliostat, ideal_heliostat, without_planes
-from .hdf5 import read_arrays, write_arrays
+from helioflow.data.hdf5 import read_arrays, write_arrays
+from helioflow.errors import DataError
+from helioflow.physics.heliostat import TRACKING_PARAMETERS, Heliostat, ideal_heliostat, without_planes
 
 SCHEMA = "helioflow.heliostat/1"
+
+
+@dataclass(frozen=True)
+class HeliostatSpec:
+    """A heliostat section of config: ideal geometry plus the scale and seed of its errors."""
+
+    name: str
+    position_m: tuple[float, float, float]
+    mount: str
+    rows: int
+    cols: int
+    width_m: float
+    height_m: float
+    gap_m: float
+    canting_focal_distance_m: float | None
+    facet_focal_length_m: float | None
+    control_points: int
+    deformation_mm: float
+    tracking_error_mrad: float
+    canting_error_mrad: float
+    seed: int
+
+    @staticmethod
+    def from_config(name: str, d: dict) -> HeliostatSpec:
+        f = d["facets"]
+        return HeliostatSpec(
+            name, tuple(d["position_m"]), d["mount"], f["rows"], f["cols"], f["width_m"], f["height_m"],
+            f.get("gap_m", 0.0), d.get("canting_focal_distance_m"), d.get("facet_focal_length_m"),
+            d.get("control_points", 6), d.get("deformation_mm", 0.0), d.get("tracking_error_mrad", 0.0),
+            d.get("canting_error_mrad", 0.0), d.get("seed", 0),
+        )
 
 
 def true_heliostat(spec: HeliostatSpec) -> Heliostat:

@@ -11,18 +11,18 @@ import os
 import numpy as np
 import torch
 
-from .. import __version__
-from ..device import resolve_device
-from ..errors import DataError
-from ..physics.effects import Physics, resolve
-from ..physics.geometry import normalize
-from ..physics.heliostat import canting_focal_distance
-from ..physics.raytrace import trace
-from ..physics.sun import rms_radius
-from ..physics.target import Target
-from .hdf5 import CalibrationDataset, write_dataset
-from .splits import assign_splits
-from .surfaces import read_heliostat
+from helioflow import __version__
+from helioflow.data.hdf5 import CalibrationDataset, write_dataset
+from helioflow.data.splits import assign_splits
+from helioflow.data.surfaces import read_heliostat
+from helioflow.device import resolve_device
+from helioflow.errors import DataError
+from helioflow.physics.effects import Physics, resolve
+from helioflow.physics.geometry import normalize
+from helioflow.physics.heliostat import canting_focal_distance
+from helioflow.physics.raytrace import trace
+from helioflow.physics.sun import rms_radius
+from helioflow.physics.target import Target
 
 log = logging.getLogger(__name__)
 

@@ -27,9 +27,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..checks import check_ranges
-from .base import SpotModel, sun_features
-from .dcgan import Discriminator, GanConfig, Generator, adam_pair, adversarial_step
+from helioflow.checks import check_ranges
+from helioflow.models.base import SpotModel, sun_features
+from helioflow.models.dcgan import Discriminator, GanConfig, Generator, adam_pair, adversarial_step
 
 CONDITION_DIM = 3  # sun_features: unit vector towards the sun
 

@@ -43,9 +43,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..checks import check_ranges, check_types
-from ..errors import ConfigError
-from .base import SpotModel
+from helioflow.checks import check_ranges, check_types
+from helioflow.errors import ConfigError
+from helioflow.models.base import SpotModel
 
 KERNEL, STRIDE, PADDING = 4, 2, 1
 LEAKY_SLOPE = 0.2

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .base import SpotModel, TrainingData, sun_features
+from helioflow.models.base import SpotModel, TrainingData, sun_features
 
 
 @dataclass(frozen=True)

@@ -125,11 +125,11 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..checks import check_ranges, check_types
-from ..errors import ConfigError
-from ..physics.geometry import normalize, plane_axes
-from ..physics.heliostat import MOUNTS, REST_FRAME, ideal_joint_angles, joint_rotation
-from .base import SpotModel, sun_features
+from helioflow.checks import check_ranges, check_types
+from helioflow.errors import ConfigError
+from helioflow.models.base import SpotModel, sun_features
+from helioflow.physics.geometry import normalize, plane_axes
+from helioflow.physics.heliostat import MOUNTS, REST_FRAME, ideal_joint_angles, joint_rotation
 
 
 @dataclass(frozen=True)

@@ -25,12 +25,13 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
-from ..checks import check_ranges, check_types
-from ..data.surfaces import read_heliostat
-from ..physics.effects import FIT, REGISTRY, check_effects
-from ..physics.heliostat import Heliostat
-from .base import SpotModel, TrainingData
-from .physics_fit import FitResult, FitSettings, Measurements, Scene, dataset_scene, fit_effects
+from helioflow.checks import check_ranges, check_types
+from helioflow.data.surfaces import read_heliostat
+from helioflow.models.base import SpotModel, TrainingData
+from helioflow.models.physics_fit import FitResult, FitSettings, Measurements, fit_effects
+from helioflow.physics.effects import FIT, REGISTRY, check_effects
+from helioflow.physics.heliostat import Heliostat
+from helioflow.physics.scene import Scene, dataset_scene
 
 
 @dataclass(frozen=True)
@@ -127,7 +128,7 @@ class RaytraceModel(SpotModel):
         return self.config.effects
 
     def scene(self, fitting: bool = False) -> Scene:
-        """What the model traces (see physics_fit.dataset_scene)."""
+        """What the model traces (see physics.scene.dataset_scene)."""
         c = self.config
         attrs = {"target_center_m": c.aim_point_m, "target_normal": c.target_normal, "target_size_m": c.target_size_m,
                  "dni_w_m2": c.dni_w_m2, "trace": c.dataset_trace}

@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..data.hdf5 import CalibrationDataset, read_dataset
-from ..device import resolve_device
-from ..errors import ConfigError, DataError
-from ..io import load_torch, save_torch_atomic
-from .base import SpotModel, TrainingData
-from .training import LoopConfig, train, write_curve
+from helioflow.data.hdf5 import CalibrationDataset, read_dataset
+from helioflow.device import resolve_device
+from helioflow.errors import ConfigError, DataError
+from helioflow.io import load_torch, save_torch_atomic
+from helioflow.models.base import SpotModel, TrainingData
+from helioflow.models.training import LoopConfig, train, write_curve
 
 log = logging.getLogger(__name__)
 

@@ -22,10 +22,10 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
-from ..checks import check_ranges, check_types
-from ..errors import DataError, HelioflowError
-from ..io import fingerprint, load_torch, save_torch_atomic, write_text_atomic
-from .base import SpotModel, TrainingData
+from helioflow.checks import check_ranges, check_types
+from helioflow.errors import DataError, HelioflowError
+from helioflow.io import fingerprint, load_torch, save_torch_atomic, write_text_atomic
+from helioflow.models.base import SpotModel, TrainingData
 
 log = logging.getLogger(__name__)
 
@@ -138,7 +138,7 @@ def save_checkpoint(path: Path, key: str, model: SpotModel, optimizers: dict, st
 def write_curve(curve: list[dict[str, float]], csv_path: str | os.PathLike, png_path: str | os.PathLike,
                 title: str) -> None:
     """The training curve as CSV (step, losses...) and as a log-scale plot."""
-    from ..evaluate.figures import plt, save_figure
+    from helioflow.plotting import plt, save_figure
 
     keys = sorted({k for row in curve for k in row} - {"step"})
     buf = io.StringIO()

@@ -62,9 +62,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .geometry import normalize, plane_axes
-from .sun import BUIE_DISC_MRAD, SunShape, effective_sigma, radial_density
-from .target import Target, gaussian_blur
+from helioflow.physics.geometry import normalize, plane_axes
+from helioflow.physics.sun import BUIE_DISC_MRAD, SunShape, effective_sigma, radial_density
+from helioflow.physics.target import Target, gaussian_blur
 
 
 def core_spread(sun: SunShape, slope_error: float) -> float:

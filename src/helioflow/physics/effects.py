@@ -17,11 +17,11 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor
 
-from ..errors import ConfigError
-from .heliostat import TRACKING_PARAMETERS, Heliostat
-from .raytrace import Optics
-from .sun import KIND_KEYS, SUN_KINDS, SunShape
-from .target import Camera
+from helioflow.errors import ConfigError
+from helioflow.physics.heliostat import TRACKING_PARAMETERS, Heliostat
+from helioflow.physics.raytrace import Optics
+from helioflow.physics.sun import KIND_KEYS, SUN_KINDS, SunShape
+from helioflow.physics.target import Camera
 
 FIT = "fit"
 

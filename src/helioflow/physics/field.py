@@ -50,11 +50,18 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor
 
-from .geometry import normalize, reflect, sun_vector
-from .heliostat import REST_FRAME, Heliostat, facet_frames, ideal_joint_angles, joint_rotation, sample_surface
-from .raytrace import Optics, density_lookup, deposit, footprint
-from .sun import support_radius
-from .target import Target
+from helioflow.physics.geometry import normalize, reflect, sun_vector
+from helioflow.physics.heliostat import (
+    REST_FRAME,
+    Heliostat,
+    facet_frames,
+    ideal_joint_angles,
+    joint_rotation,
+    sample_surface,
+)
+from helioflow.physics.raytrace import Optics, density_lookup, deposit, footprint
+from helioflow.physics.sun import support_radius
+from helioflow.physics.target import Target
 
 WINDOW = 64  # cells per side of a heliostat's spot grid
 BUDGET_TERMS = ("incident", "shaded", "reflected", "blocked", "attenuated", "on_receiver", "spilled")

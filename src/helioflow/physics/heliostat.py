@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .geometry import normalize, rotation_about_axis
+from helioflow.physics.geometry import normalize, rotation_about_axis
 
 MOUNTS = ("az_el", "juelich")
 TRACKING_PARAMETERS = (

@@ -23,7 +23,7 @@ import os
 import torch
 from torch import Tensor
 
-from ..errors import ConfigError, DataError
+from helioflow.errors import ConfigError, DataError
 
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))  # rad, 137.5 deg
 SUNFLOWER_NEAREST = 1.68  # closest-pair distance / a in the bulk of a golden-angle spiral (1.675-1.677)

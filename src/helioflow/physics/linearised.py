@@ -24,10 +24,17 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor
 
-from .geometry import normalize, sun_vector
-from .heliostat import Heliostat, deformation, facet_frames, sample_surface
-from .raytrace import Optics, _project, central_hits, mean_rays, padded_canvas, splat_footprints
-from .target import Target
+from helioflow.physics.geometry import normalize, sun_vector
+from helioflow.physics.heliostat import Heliostat, deformation, facet_frames, sample_surface
+from helioflow.physics.raytrace import (
+    Optics,
+    _project,
+    central_hits,
+    mean_rays,
+    padded_canvas,
+    splat_footprints,
+)
+from helioflow.physics.target import Target
 
 FD_STEP = 0.05  # central-difference step of the derivatives (mrad, mrad, mm); the hits are linear
 

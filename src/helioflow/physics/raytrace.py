@@ -41,10 +41,10 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor
 
-from .geometry import normalize, plane_axes, reflect, sun_vector
-from .heliostat import Heliostat, orientation, sample_surface
-from .sun import SunShape, radial_density, sample_deviations, support_radius
-from .target import Target
+from helioflow.physics.geometry import normalize, plane_axes, reflect, sun_vector
+from helioflow.physics.heliostat import Heliostat, orientation, sample_surface
+from helioflow.physics.sun import SunShape, radial_density, sample_deviations, support_radius
+from helioflow.physics.target import Target
 
 SPLATS = ("bilinear", "kernel")
 POOL_SIZE = 2**20

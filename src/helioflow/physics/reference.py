@@ -34,9 +34,9 @@ import math
 import numpy as np
 import torch
 
-from .heliostat import Heliostat, bspline_basis, facet_frames, orientation
-from .sun import sample_deviations
-from .target import Target
+from helioflow.physics.heliostat import Heliostat, bspline_basis, facet_frames, orientation
+from helioflow.physics.sun import sample_deviations
+from helioflow.physics.target import Target
 
 BLOCK = 200_000  # rays traced at once
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .geometry import normalize, plane_axes
+from helioflow.physics.geometry import normalize, plane_axes
 
 
 @dataclass(frozen=True)
@@ -63,12 +63,26 @@ class Target:
         d = points - self.center
         return torch.stack(((d * right).sum(-1), (d * up).sum(-1)), dim=-1)
 
+    def centroid(self, images: Tensor) -> Tensor:
+        """(N, H, W) flux -> (N, 2) flux-weighted centroid (u, v) in target coordinates (m)."""
+        row_col = pixel_centroid(images)
+        rows, cols = self.resolution
+        pw, ph = self.pixel_size
+        return torch.stack(((row_col[..., 1] + 0.5) * pw - self.width / 2,
+                            self.height / 2 - (row_col[..., 0] + 0.5) * ph), dim=-1)
 
-def centroid(images: Tensor, target: Target) -> Tensor:
-    """(N, H, W) flux -> (N, 2) flux-weighted centroid (u, v) in target coordinates (m)."""
-    u, v = target.pixel_centres(images.dtype, images.device)
-    total = images.sum((-2, -1)).clamp_min(1e-30)
-    return torch.stack(((images.sum(-2) * u).sum(-1) / total, (images.sum(-1) * v).sum(-1) / total), dim=-1)
+
+def pixel_centroid(images: Tensor) -> Tensor:
+    """(..., H, W) flux -> (..., 2) flux-weighted centroid (row, col) in pixels from the centre of
+    pixel (0, 0); negative values count as 0, an image without positive flux has none (NaN).
+    The one centroid of helioflow: scoring's metric (scoring.metrics.centroid_px) and
+    `Target.centroid` use it."""
+    flux = images.clamp_min(0.0)
+    total = flux.sum((-2, -1))
+    rows = torch.arange(images.shape[-2], dtype=images.dtype, device=images.device)
+    cols = torch.arange(images.shape[-1], dtype=images.dtype, device=images.device)
+    centre = torch.stack(((flux.sum(-1) * rows).sum(-1), (flux.sum(-2) * cols).sum(-1)), dim=-1) / total[..., None]
+    return torch.where(total[..., None] > 0, centre, torch.nan)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,453 @@
+"""The diagnosis: where the physics model fails against the measurements, and which effect is missing.
+
+1. The model (config `model.effects`, its "fit" parameters fitted on the train split) predicts
+   every measured image; residual signatures against sun position are measured (`signatures`).
+2. Attribution: every candidate change (diagnosis/candidates.py: an effect the model lacks, a
+   present effect's fixed values freed, the sun switched to another profile) is fitted on the
+   train split and scored on the held-out splits (interpolation and extrapolation together). Fits
+   are nested: a model with one change more starts from the best fit with one fewer and never ends
+   with a higher training loss. With one effect missing, the change that cuts the held-out error
+   most is it; with several, a flexible effect (the surface) that mimics them all in part can win
+   alone. So the identifiable candidates are chosen as the best subset (`Diagnosis.select`): the
+   best single change, then the best pair whose both members are needed (dropping either costs a
+   meaningful error), kept when it beats the single meaningfully, and so on up to `max_effects`
+   (cost: every compatible subset of that size is fitted, e.g. 28 pairs of 8 candidates). Changes
+   that explain the same residual are reported as confounded, with the measurement that would
+   separate them; fitted values outside their physical range are flagged. Pure scale effects
+   (unidentifiable on images compared by shape) are listed after the others.
+3. A plain-language verdict names the top effect with its signature.
+
+The error measure is the misplaced flux fraction: half the L1 distance between the predicted and
+measured images, each divided by its own sum (0 = same shape, 1 = no overlap); a pure scale
+changes nothing. A candidate claims a meaningful reduction when it cuts the held-out error by at
+least `THRESHOLD` (relative) and by at least `ABSOLUTE_FLOOR` (absolute): below those, a
+better fit is the noise of fitting more parameters.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from helioflow.data.hdf5 import read_dataset
+from helioflow.data.surfaces import read_heliostat
+from helioflow.device import resolve_device
+from helioflow.diagnosis.candidates import Candidate, candidates, implausible, separating
+from helioflow.errors import DataError
+from helioflow.io import write_text_atomic
+from helioflow.models.physics_fit import (
+    TENSORS,
+    FitResult,
+    FitSettings,
+    Measurements,
+    fit_effects,
+    initial_tensors,
+)
+from helioflow.physics.effects import FIT, REGISTRY, fitted_parameters
+from helioflow.physics.scene import Scene, dataset_scene
+from helioflow.scoring.metrics import misplaced_flux
+
+log = logging.getLogger(__name__)
+
+ERROR_MEASURE = {"name": "misplaced_flux_fraction",
+                 "description": "half the L1 distance of predicted and measured images, each divided by its own "
+                                "sum: the fraction of the spot's flux in the wrong place (0 = same shape)"}
+THRESHOLD = 0.25  # relative held-out error reduction a candidate needs to count
+ABSOLUTE_FLOOR = 0.002  # ... and absolute reduction of the misplaced flux fraction
+ROUNDING = 1e-3  # relative: a nested fit that ends no worse than its start up to this (float32 rounding of
+#                   a loss that is a small difference of large numbers) keeps its own values
+CONFOUNDED_RATIO = 1.5  # two changes whose held-out errors are within this factor explain the same residual alike
+CORE_FRACTION = 0.05  # the sun-limited core: pixels where the model's spot exceeds this fraction of its peak
+
+MISSING_TEXT = {
+    "sunshape": "a wider sun shape", "slope_error": "slope error (small-scale mirror roughness)",
+    "tracking": "a tracking error (kinematic offsets of the heliostat's axes)",
+    "canting": "facet canting errors", "surface": "a surface deformation (smooth mirror shape errors)",
+    "camera": "the camera's response (background and blur)", "attenuation": "atmospheric attenuation",
+    "reflectivity": "a lower mirror reflectivity",
+}
+SIGNATURE_TEXT = {
+    "sunshape": "the measured spots are {width} than the model's, in every direction",
+    "slope_error": "the measured spots are {width} than the model's, in every direction",
+    "tracking": "the spot centroids are off by {centroid:.2f} mrad RMS, varying with sun position",
+    "canting": "the measured spots have a different structure (facets' images do not overlap as the model's do)",
+    "surface": "the measured spot shapes differ from the model's in ways that change with the sun position",
+    "camera": "{outside:.1%} of the measured flux lies outside the model's spot (background or blur)",
+    "attenuation": "the measured flux is {ratio:.3f} times the model's (a scale)",
+    "reflectivity": "the measured flux is {ratio:.3f} times the model's (a scale)",
+}
+
+
+def model_hash(effects: dict) -> str:
+    """Short hash of a model effect list's content: the ledger's key for a model revision."""
+    return hashlib.sha256(json.dumps(effects, sort_keys=True).encode()).hexdigest()[:10]
+
+
+def signatures(scene: Scene, pred: Tensor, meas: Tensor, slant_m: float) -> dict[str, np.ndarray]:
+    """Residual signatures per image (N,): centroid offset (mrad, target right/up, as seen from
+    the heliostat), spot ellipse of measured and predicted (semi-axes m, orientation deg), width
+    ratio, energy ratio (measured / predicted), fraction of measured energy outside the model's core."""
+    out: dict[str, np.ndarray] = {}
+    c_pred, c_meas = scene.target.centroid(pred), scene.target.centroid(meas)
+    offset = (c_meas - c_pred) / slant_m * 1e3
+    out["centroid_right_mrad"], out["centroid_up_mrad"] = offset[:, 0].numpy(), offset[:, 1].numpy()
+    for name, images, c in (("measured", meas, c_meas), ("model", pred, c_pred)):
+        major, minor, angle = _ellipse(images, scene, c)
+        out[f"{name}_major_m"], out[f"{name}_minor_m"], out[f"{name}_angle_deg"] = major, minor, angle
+    out["width_ratio"] = np.sqrt(out["measured_major_m"] * out["measured_minor_m"]
+                                 / np.maximum(out["model_major_m"] * out["model_minor_m"], 1e-30))
+    out["energy_ratio"] = (meas.sum((-2, -1)) / pred.sum((-2, -1)).clamp_min(1e-30)).numpy()
+    core = pred >= CORE_FRACTION * pred.amax((-2, -1), keepdim=True)
+    out["energy_outside_core"] = ((meas * ~core).sum((-2, -1)) / meas.sum((-2, -1)).clamp_min(1e-30)).numpy()
+    return out
+
+
+def _ellipse(images: Tensor, scene: Scene, c: Tensor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Semi-axes (2 sigma, m) and orientation (deg from the target's right axis) of each spot's
+    second moments about its centroid c (N, 2)."""
+    u, v = scene.target.pixel_centres(images.dtype)
+    w = images / images.sum((-2, -1), keepdim=True).clamp_min(1e-30)
+    du = u[None, None, :] - c[:, 0, None, None]
+    dv = v[None, :, None] - c[:, 1, None, None]
+    suu, svv, suv = (w * du * du).sum((-2, -1)), (w * dv * dv).sum((-2, -1)), (w * du * dv).sum((-2, -1))
+    cov = torch.stack((torch.stack((suu, suv), -1), torch.stack((suv, svv), -1)), -2).double()
+    values, vectors = torch.linalg.eigh(cov)
+    angle = torch.rad2deg(torch.atan2(vectors[:, 1, 1], vectors[:, 0, 1])) % 180.0
+    return (2 * values[:, 1].clamp_min(0).sqrt()).numpy(), (2 * values[:, 0].clamp_min(0).sqrt()).numpy(), angle.numpy()
+
+
+class Diagnosis:
+    """One dataset against one model effect list: fits, scores and ranks (see module doc)."""
+
+    def __init__(self, scene: Scene, effects: dict, train: Measurements, heldout: Measurements,
+                 settings: FitSettings, max_effects: int = 2):
+        self.scene, self.effects, self.train, self.heldout = scene, effects, train, heldout
+        self.max_effects = max_effects
+        self.settings = FitSettings(**{**vars(settings), "loss": "shape"})
+        self.tried, self.skipped = candidates(effects, scene.heliostat.n_facets)
+        self.candidate = {c.label: c for c in self.tried}
+        self.fits: dict[frozenset, tuple[float, FitResult]] = {}
+
+    def effects_with(self, labels) -> dict:
+        """The model's effect list with the candidates `labels` applied."""
+        out = {e: dict(p or {}) for e, p in self.effects.items()}
+        for label in labels:
+            c = self.candidate[label]
+            out[c.effect] = dict(c.params)
+        return out
+
+    def compatible(self, labels) -> bool:
+        """Whether the candidates change different effects (two changes of one effect exclude each other)."""
+        effects = [self.candidate[label].effect for label in labels]
+        return len(set(effects)) == len(effects)
+
+    def fitted(self, labels) -> tuple[float, FitResult]:
+        """(held-out misplaced flux, the fit) of the model with the candidates `labels`, fitted on the
+        train split. Nested: the fit starts from the best fit of one candidate fewer (lowest training
+        loss) and keeps that start, the added candidate at its neutral values, when it ends with a
+        higher training loss (beyond ROUNDING): adding a candidate never raises the training loss."""
+        key = frozenset(labels)
+        if key in self.fits:
+            return self.fits[key]
+        effects = self.effects_with(key)
+        if not key:
+            result = fit_effects(self.scene, effects, self.train, self.settings)
+        else:
+            base, added = min(((self.fitted(key - {label})[1], label) for label in key),
+                              key=lambda pair: pair[0].history[-1])
+            result = fit_effects(self.scene, effects, self.train, self.settings, start=base)
+            kept = self._embedded(base, key, added)
+            if kept is not None and result.history[-1] > base.history[-1] * (1.0 + ROUNDING):
+                result = kept
+        with torch.no_grad():
+            pred, lost = self.scene.simulate(result.effects, result.tensors, self.heldout.azimuth_deg,
+                                             self.heldout.elevation_deg, with_lost=True)
+        self.fits[key] = (float(misplaced_flux(pred, self.heldout.images, lost).mean()), result)
+        log.info("model + %s: held-out error %.4f", " + ".join(sorted(key)) or "nothing", self.fits[key][0])
+        return self.fits[key]
+
+    def _embedded(self, base: FitResult, key: frozenset, added: str) -> FitResult | None:
+        """The fit `base` as a fit of the model with the candidates `key`: the `added` candidate at
+        its neutral values (None when it has none: a switched sun shape)."""
+        c = self.candidate[added]
+        if c.neutral is None:
+            return None
+        effects = {e: dict(p) for e, p in base.effects.items()}
+        effects[c.effect] = dict(c.params) if c.effect in TENSORS else dict(c.neutral)
+        zeros, _ = initial_tensors(self.effects_with(key), self.scene.heliostat)
+        tensors = {**zeros, **base.tensors}
+        return FitResult(effects, tensors, list(base.history), fitted_parameters(self.effects_with(key)))
+
+    def error(self, labels) -> float:
+        return self.fitted(labels)[0]
+
+    def select(self) -> list[str]:
+        """The candidates the measurements need (best subset, module doc), in the order a forward
+        path adds them."""
+        names = [c.label for c in self.tried if REGISTRY[c.effect].identifiable]
+        chosen: tuple = ()
+        for k in range(1, self.max_effects + 1):
+            subsets = [s for s in itertools.combinations(names, k) if self.compatible(s)]
+            needed = [s for s in subsets
+                      if k == 1 or all(is_meaningful(self.error(set(s) - {m}), self.error(s)) for m in s)]
+            if not needed:
+                break
+            best = min(needed, key=self.error)
+            if not is_meaningful(self.error(chosen), self.error(best)):
+                break
+            chosen = best
+        order: list[str] = []
+        while len(order) < len(chosen):
+            order.append(min((n for n in chosen if n not in order), key=lambda n: self.error([*order, n])))
+        return order
+
+    def rank(self) -> tuple[float, FitResult, list[dict], list[dict]]:
+        """(held-out error of the model, the model's fit, ranking best first, effects not tested).
+
+        The selected candidates first, in forward order (each entry's before/after is the held-out
+        error without and with it, the candidates above it included), then the rest, each added
+        alone, by that cut, the unidentifiable scales last. Every entry also carries
+        `reduction_alone` (the cut when it is the only change) and `confounded_with`."""
+        before = self.error(())
+        selected = self.select()
+        ranking = [self._entry(n, selected[:k], meaningful=True) for k, n in enumerate(selected)]
+        rest = [self._entry(c.label, [], meaningful=False) for c in self.tried if c.label not in selected]
+        rest.sort(key=lambda r: (not r["identifiable"], -r["relative_reduction"]))
+        ranking += rest
+        for r in ranking:
+            r["reduction_alone"] = 1.0 - self.error([r["effect"]]) / max(before, 1e-30)
+            r["confounded_with"] = self.confounded(r["effect"])
+        return before, self.fitted(())[1], ranking, self.skipped
+
+    def confounded(self, label: str) -> list[dict]:
+        """Candidates that explain the same residual as `label`: each alone cuts the held-out error
+        meaningfully, to much the same error (within CONFOUNDED_RATIO of each other), and fitted
+        together they do no meaningfully better than the better one alone. With the measurement
+        that separates them."""
+        before, mine = self.error(()), self.error([label])
+        if not is_meaningful(before, mine):
+            return []
+        out = []
+        for c in self.tried:
+            other = c.label
+            if other == label or not self.compatible([label, other]) or not REGISTRY[c.effect].identifiable:
+                continue
+            theirs = self.error([other])
+            if not is_meaningful(before, theirs) or max(theirs, mine) > CONFOUNDED_RATIO * min(theirs, mine):
+                continue
+            if frozenset([label, other]) in self.fits and is_meaningful(min(mine, theirs), self.error([label, other])):
+                continue
+            out.append({"effect": other, "relative_reduction": 1.0 - theirs / max(before, 1e-30),
+                        "separated_by": separating(self.candidate[label].effect, c.effect)})
+        return out
+
+    def _entry(self, name: str, base: list[str], meaningful: bool) -> dict:
+        """One ranking entry: candidate `name` added to the model plus the candidates `base`."""
+        before, after = self.error(base), self.error([*base, name])
+        c = self.candidate[name]
+        fit = self.fitted([*base, name])[1]
+        own = {k.split(".", 1)[1]: v for k, v in fit.fitted_values().items() if k.startswith(c.effect + ".")}
+        return {"effect": name, "changes": c.effect, "change": c.change, "fitted": _summarised(own),
+                "added_to": list(base), "heldout_error_before": before, "heldout_error_after": after,
+                "relative_reduction": 1.0 - after / max(before, 1e-30),
+                "identifiable": REGISTRY[c.effect].identifiable, "meaningful": meaningful,
+                "config": config_line(c, fit)}
+
+
+def is_meaningful(before: float, after: float) -> bool:
+    """Does going from held-out error `before` to `after` count as a finding (module doc)?"""
+    return after <= (1.0 - THRESHOLD) * before and before - after >= ABSOLUTE_FLOOR
+
+
+def config_line(candidate: Candidate, fit: FitResult) -> str:
+    """The line to paste under `model.effects` in config.yaml: the candidate's fitted scalars at
+    their values, "fit" for the heliostat's canting and surface (the physics models fit those)."""
+    values, params = fit.fitted_values(), {}
+    for k, v in candidate.params.items():
+        value = values.get(f"{candidate.effect}.{k}", v) if v == FIT else v
+        params[k] = v if isinstance(value, list) else (round(value, 4) if isinstance(value, float) else value)
+    return f"{candidate.effect}: {{{', '.join(f'{k}: {v}' for k, v in params.items())}}}"
+
+
+def _summarised(values: dict) -> dict:
+    """Fitted values for the JSON: tensors (lists) as their RMS and size."""
+    out = {}
+    for k, v in values.items():
+        if isinstance(v, list):
+            a = np.asarray(v, dtype=float)
+            out[f"{k}_rms"] = round(float(np.sqrt((a**2).mean())), 4)
+            out[f"{k}_count"] = int(a.size)
+        else:
+            out[k] = round(float(v), 4) if isinstance(v, (int, float)) else v
+    return out
+
+
+def verdict(ranking: list[dict], summary: dict) -> str:
+    """One plain-language paragraph: what is missing or off, the evidence, how much fitting it
+    helps, what it is confounded with and how to tell them apart, implausible fitted values, and
+    the config line to paste."""
+    if not ranking:
+        return "No effect could be tested: the model contains every registry effect that applies here."
+    meaningful = [r for r in ranking if r["meaningful"]]
+    if not meaningful:
+        best = ranking[0]
+        change = (f"cuts it by {best['relative_reduction']:.0%}" if best["relative_reduction"] > 0
+                  else "does not lower it")
+        return (f"No missing effect found: no change to the model cuts the held-out error (misplaced flux "
+                f"{best['heldout_error_before']:.3f}) by {THRESHOLD:.0%} or more; the best, "
+                f"{_words(best)}, {change}. The model explains the measurements as far as the registry's effects "
+                "can tell.")
+    top = meaningful[0]
+    effect = top["changes"]
+    evidence = SIGNATURE_TEXT[effect].format(**summary)
+    if top["change"] == "add":
+        lacks = f"The model lacks {MISSING_TEXT[effect]}"
+    elif top["change"] == "switch":
+        lacks = f"The model's sun is not the one it assumes: a {top['effect'].split(': ')[1]} sun fits better"
+    else:
+        lacks = f"The model's fixed {effect.replace('_', ' ')} values are off ({top['effect']})"
+    text = (f"{lacks}: {evidence}; fitting it cuts the held-out error by {top['relative_reduction']:.0%} "
+            f"(misplaced flux {top['heldout_error_before']:.3f} -> {top['heldout_error_after']:.3f}).")
+    if len(meaningful) > 1:
+        others = ", ".join(f"{_words(r)} ({r['relative_reduction']:.0%})" for r in meaningful[1:])
+        text += f" Also needed, each added to the changes before it: {others}."
+    for r in meaningful:
+        for c in r["confounded_with"]:
+            text += (f" {_words(r).capitalize()} and {c['effect'].replace('_', ' ')} ({c['relative_reduction']:.0%} "
+                     f"alone) explain the same residual on these images: {c['separated_by']} would tell them apart.")
+        for flag in implausible({f"{r['changes']}.{k}": v for k, v in r["fitted"].items()}):
+            text += f" The fitted {flag} is implausible: it likely stands in for another effect."
+    lines = "; ".join(f"`{r['config']}`" for r in meaningful)
+    return text + f" To add it, put under model.effects in config.yaml: {lines}; rerun, and look again."
+
+
+def _words(entry: dict) -> str:
+    return entry["effect"].replace("_", " ")
+
+
+def summarise(sig: dict[str, np.ndarray]) -> dict:
+    """Numbers the verdict and the JSON quote, over all images."""
+    ratio = float(np.median(sig["width_ratio"]))
+    return {"centroid": float(np.sqrt(np.mean(sig["centroid_right_mrad"] ** 2 + sig["centroid_up_mrad"] ** 2))),
+            "width": f"{abs(ratio - 1):.1%} " + ("wider" if ratio >= 1 else "narrower"),
+            "width_ratio": ratio, "outside": float(np.median(sig["energy_outside_core"])),
+            "ratio": float(np.median(sig["energy_ratio"]))}
+
+
+def read_ledger(path: str | os.PathLike) -> list[dict]:
+    """The revisions in the ledger at `path` (none when it does not exist yet); DataError names the
+    file when it is not a ledger. Read before the fits, so that a broken ledger costs no run."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    try:
+        entries = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DataError(f"{path}: not a readable ledger (JSON list of model revisions): {exc}; "
+                        "repair it or delete it to start a new ledger") from None
+    keys = ("revision", "model_hash", "dataset_hash", "model_effects", "heldout_error")
+    if not isinstance(entries, list) or not all(isinstance(e, dict) and all(k in e for k in keys) for e in entries):
+        raise DataError(f"{path}: expected a JSON list of model revisions, each with {', '.join(keys)}; "
+                        "repair it or delete it to start a new ledger")
+    return entries
+
+
+def update_ledger(path: str | os.PathLike, dataset_hash: str, effects: dict, error: float) -> list[dict]:
+    """Record the held-out error of this model revision in the ledger at `path` (JSON list, kept
+    across runs: not a rule output) and return the revisions on the same measurements, oldest
+    first, the newest marked `current`. A rerun of the newest revision (same model effect list)
+    replaces it; any other model, one tried before included (going back), is a new revision."""
+    entries = read_ledger(path)
+    key = model_hash(effects)
+    same = [e for e in entries if e["dataset_hash"] == dataset_hash]
+    if same and same[-1]["model_hash"] == key:
+        entry = same[-1]
+    else:
+        entry = {"revision": len(same) + 1, "model_hash": key, "dataset_hash": dataset_hash, "model_effects": effects}
+        entries.append(entry)
+        same.append(entry)
+    entry["heldout_error"] = error
+    for e in same:
+        e["current"] = e is entry
+    write_text_atomic(path, json.dumps(entries, indent=1))
+    return same
+
+
+def _measurements(ds, index: np.ndarray, scale: float, device: str | torch.device = "cpu") -> Measurements:
+    return Measurements((torch.as_tensor(ds.images[index]) / scale).to(device),
+                        torch.as_tensor(ds.azimuth_deg[index]).float().to(device),
+                        torch.as_tensor(ds.elevation_deg[index]).float().to(device), scale)
+
+
+def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict, output_json, figures: dict,
+                     ledger_path, device: str = "cpu") -> dict:
+    """The `diagnose` rule: diagnosis/{dataset}.json and its figures (keys of `figures`:
+    signatures, ranking, residuals, ledger).
+
+    Args:
+        effects: the model's effect list for this dataset.
+        settings: fit_images, heldout_images, fit_steps, rounds, cells_per_side, fit_rays, max_effects.
+        device: where the fits run (cpu | cuda | auto).
+    """
+    from helioflow.diagnosis.figures import plot_diagnosis
+
+    ds = read_dataset(dataset_path)
+    read_ledger(ledger_path)  # a broken ledger stops the rule before the fits, not after them
+    train_index = ds.indices("train")
+    heldout_index = np.concatenate((ds.indices("interpolation"), ds.indices("extrapolation")))
+    scale = float(ds.images[train_index].max())
+    pick = lambda index, n: index[np.linspace(0, len(index) - 1, min(n, len(index))).round().astype(int)]
+    device = resolve_device(device)
+    heliostat = read_heliostat(heliostat_path).ideal().to(device)
+    shape = tuple(ds.images.shape[1:])
+    fit_scene = dataset_scene(heliostat, ds.attrs, shape, settings["cells_per_side"], settings["fit_rays"], True)
+    fit = FitSettings(steps=settings["fit_steps"], rounds=settings["rounds"])
+    diagnosis = Diagnosis(fit_scene, effects, _measurements(ds, pick(train_index, settings["fit_images"]), scale, device),
+                          _measurements(ds, pick(heldout_index, settings["heldout_images"]), scale, device), fit,
+                          settings["max_effects"])
+    before, model, ranking, skipped = diagnosis.rank()
+    everything = _measurements(ds, np.arange(len(ds.images)), scale)
+    with torch.no_grad():
+        pred, lost = fit_scene.simulate(model.effects, model.tensors, everything.azimuth_deg.to(device),
+                                        everything.elevation_deg.to(device), with_lost=True)
+        pred, lost = pred.cpu() / scale, lost.cpu() / scale
+    slant = float(np.linalg.norm(np.subtract(ds.attrs["target_center_m"], heliostat.position.cpu().numpy())))
+    sig = signatures(fit_scene, pred, everything.images, slant)
+    summary = summarise(sig)
+    if ds.attrs.get("per_image_normalised"):  # each image divided by its own peak: no absolute energy
+        sig.pop("energy_ratio")
+        summary["ratio"] = None
+    ledger = update_ledger(ledger_path, str(ds.attrs.get("config_hash", Path(dataset_path).stem)), effects, before)
+    result = {
+        "dataset": ds.attrs.get("dataset", Path(dataset_path).stem),
+        "model_effects": effects,
+        "model_hash": model_hash(effects),
+        "error_measure": ERROR_MEASURE,
+        "threshold": {"relative_reduction": THRESHOLD, "absolute_reduction": ABSOLUTE_FLOOR},
+        "heldout_error": before,
+        "model_fitted": _summarised(model.fitted_values()),
+        "ranking": ranking,
+        "not_tested": skipped,
+        "signatures": {"rms_centroid_offset_mrad": summary["centroid"], "median_width_ratio": summary["width_ratio"],
+                       "median_energy_ratio": summary["ratio"], "median_energy_outside_core": summary["outside"],
+                       "note": ("images each normalised to their own peak: no energy ratio between measured and "
+                                "predicted flux" if summary["ratio"] is None else ""),
+                       "per_image": {"azimuth_deg": ds.azimuth_deg.tolist(), "elevation_deg": ds.elevation_deg.tolist(),
+                                     "split": ds.split.tolist(),
+                                     **{k: np.round(v, 5).tolist() for k, v in sig.items()}}},
+        "verdict": verdict(ranking, summary),
+        "ledger": ledger,
+    }
+    error = misplaced_flux(pred, everything.images, lost).numpy()
+    plot_diagnosis(result, ds, pred.numpy(), everything.images.numpy(), error, figures)
+    write_text_atomic(output_json, json.dumps(result, indent=1))
+    log.info("verdict: %s", result["verdict"])
+    return result

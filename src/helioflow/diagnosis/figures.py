@@ -1,0 +1,122 @@
+"""Figures of the diagnosis: residual signatures, the ranking, the worst residual images, the ledger."""
+
+from __future__ import annotations
+
+import textwrap
+
+import numpy as np
+
+from helioflow.plotting import save_figure
+
+SPLIT_COLOURS = {"train": "tab:blue", "interpolation": "tab:green", "extrapolation": "tab:red"}
+
+
+def _verdict_title(fig, verdict: str) -> None:
+    fig.suptitle("\n".join(textwrap.wrap(verdict, 150)), fontsize=8, ha="left", x=0.01)
+
+
+def plot_signatures(result: dict, path) -> None:
+    """Centroid offset, spot width ratio and energy outside the core against sun azimuth and elevation."""
+    import matplotlib.pyplot as plt
+
+    per = result["signatures"]["per_image"]
+    split = np.asarray(per["split"])
+    rows = (("centroid_right_mrad", "centroid offset right (mrad)"), ("centroid_up_mrad", "centroid offset up (mrad)"),
+            ("width_ratio", "spot width measured / model"), ("energy_outside_core", "measured flux outside model core"))
+    fig, axes = plt.subplots(2, len(rows), figsize=(4 * len(rows), 6.4), squeeze=False)
+    for col, (key, label) in enumerate(rows):
+        for row, angle in enumerate(("azimuth_deg", "elevation_deg")):
+            ax = axes[row, col]
+            for name, colour in SPLIT_COLOURS.items():
+                m = split == name
+                ax.scatter(np.asarray(per[angle])[m], np.asarray(per[key])[m], s=8, c=colour, label=name)
+            ax.set_xlabel(f"sun {angle.replace('_deg', '')} (deg)")
+            ax.set_ylabel(label, fontsize=8)
+    axes[0, 0].legend(fontsize=7)
+    _verdict_title(fig, result["verdict"])
+    fig.tight_layout(rect=(0, 0, 1, 0.9))
+    save_figure(fig, path)
+
+
+def plot_ranking(result: dict, path) -> None:
+    """Held-out error before and after fitting each absent effect, best first."""
+    import matplotlib.pyplot as plt
+
+    ranking = result["ranking"]
+    fig, ax = plt.subplots(figsize=(7, 0.45 * max(len(ranking), 1) + 1.6))
+    names = [r["effect"] + ("" if r["identifiable"] else " (scale: not identifiable)") for r in ranking]
+    y = np.arange(len(ranking))[::-1]
+    ax.barh(y, [r["heldout_error_before"] for r in ranking], color="lightgray", label="model")
+    ax.barh(y, [r["heldout_error_after"] for r in ranking],
+            color=["tab:green" if r["meaningful"] else "tab:gray" for r in ranking], label="model + effect (fitted)")
+    for yi, r in zip(y, ranking):
+        ax.text(r["heldout_error_before"], yi, f" {-r['relative_reduction'] + 0.0:+.0%}", va="center", fontsize=8)
+    ax.set_yticks(y, names, fontsize=8)
+    ax.set_xlabel(f"held-out {result['error_measure']['name'].replace('_', ' ')}")
+    ax.legend(fontsize=7, loc="lower right")
+    ax.set_title(f"{result['dataset']}: which missing effect explains the residuals", fontsize=9)
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def plot_residuals(result: dict, ds, pred: np.ndarray, meas: np.ndarray, error: np.ndarray, path, n: int = 4) -> None:
+    """Measured, model and predicted - measured (the evaluate grid's sign) at the n sun positions the
+    model fits worst, each image divided by its mean (the shapes the misplaced flux compares): one
+    colour scale for all images, one for all differences, with colour bars."""
+    import matplotlib.pyplot as plt
+
+    worst = np.argsort(error)[::-1][:n]
+    pixels = meas.shape[-1] * meas.shape[-2]
+    meas, pred = (x / np.maximum(x.sum((-2, -1), keepdims=True), 1e-30) * pixels for x in (meas, pred))
+    peak = max(float(meas[worst].max()), float(pred[worst].max()), 1e-30)
+    diff = pred[worst] - meas[worst]
+    span = max(float(np.abs(diff).max()), 1e-30)
+    fig, axes = plt.subplots(3, len(worst), figsize=(2.6 * len(worst) + 0.8, 7.4), squeeze=False)
+    for col, i in enumerate(worst):
+        for row, (image, cmap, lo, hi) in enumerate(((meas[i], "inferno", 0, peak), (pred[i], "inferno", 0, peak),
+                                                     (diff[col], "RdBu_r", -span, span))):
+            ax = axes[row, col]
+            shown = ax.imshow(image, cmap=cmap, vmin=lo, vmax=hi)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if col == len(worst) - 1:
+                fig.colorbar(shown, ax=axes[row, :].tolist(), shrink=0.8, label="flux / its mean")
+        axes[0, col].set_title(f"{ds.split[i]}, az {ds.azimuth_deg[i]:.0f}°, el {ds.elevation_deg[i]:.0f}°\n"
+                               f"misplaced {error[i]:.3f}", fontsize=8)
+    for row, label in enumerate(("measured", "model", "predicted − measured")):
+        axes[row, 0].set_ylabel(label)
+    save_figure(fig, path)
+
+
+def plot_ledger(result: dict, path) -> None:
+    """Held-out error of every model revision on these measurements, oldest first."""
+    import matplotlib.pyplot as plt
+
+    ledger = result["ledger"]
+    fig, ax = plt.subplots(figsize=(6, 3.2))
+    x = [e["revision"] for e in ledger]
+    ax.plot(x, [e["heldout_error"] for e in ledger], "o-")
+    current = [e for e in ledger if e.get("current")]
+    ax.plot([e["revision"] for e in current], [e["heldout_error"] for e in current], "o", color="tab:red",
+            markersize=9, label="current model")
+    if current:
+        ax.legend(fontsize=7)
+    for e in ledger:
+        label = ", ".join(sorted(e["model_effects"])) or "(no effects)"
+        ax.annotate(textwrap.fill(label, 28), (e["revision"], e["heldout_error"]), fontsize=6,
+                    textcoords="offset points", xytext=(4, 4))
+    ax.set_xticks(x)
+    ax.set_xlabel("model revision")
+    ax.set_ylabel(f"held-out {result['error_measure']['name'].replace('_', ' ')}")
+    ax.set_ylim(bottom=0)
+    ax.set_title(f"{result['dataset']}: error ledger", fontsize=9)
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def plot_diagnosis(result: dict, ds, pred: np.ndarray, meas: np.ndarray, error: np.ndarray, figures: dict) -> None:
+    """All four figures; `figures` maps signatures, ranking, residuals, ledger to paths."""
+    plot_signatures(result, figures["signatures"])
+    plot_ranking(result, figures["ranking"])
+    plot_residuals(result, ds, pred, meas, error, figures["residuals"])
+    plot_ledger(result, figures["ledger"])

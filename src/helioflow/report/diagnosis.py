@@ -1,0 +1,87 @@
+"""The report's diagnosis and error-ledger sections, from diagnosis/<dataset>.json (rule
+`diagnose`) and its figures figures/diagnosis/<dataset>_{signatures,ranking,residuals,ledger}.png."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from helioflow.errors import DataError
+from helioflow.report.html import esc, figure, figures_by_name, fmt, nested_tables, read_json, table
+
+FIGURES = (("signatures", "residual signatures against sun position"),
+           ("ranking", "ranking of the missing effects"),
+           ("residuals", "residual images at the worst sun positions"))
+
+
+def _fitted(params: dict) -> str:
+    """'a = 0.5, b = 2' of parameter values (floats to 4 significant digits)."""
+    return ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
+                     for k, v in (params or {}).items())
+
+
+def _pct(value) -> str:
+    return "–" if value is None else f"{round(100 * value):d} %"
+
+
+def read_diagnosis(path: str) -> dict:
+    """A diagnosis JSON with its `dataset` (default: the file's stem); DataError if it has no ranking."""
+    data = read_json(path)
+    if not isinstance(data, dict) or not isinstance(data.get("ranking"), list):
+        raise DataError(f"{path}: not a diagnosis JSON (written by `diagnose`): no `ranking` list")
+    data.setdefault("dataset", Path(path).stem)
+    return data
+
+
+def _terms(d: dict) -> str:
+    """The model the diagnosis started from, its error measure and its threshold."""
+    measure = d.get("error_measure") or {}
+    threshold = d.get("threshold")
+    if isinstance(threshold, dict):
+        threshold = _fitted(threshold)
+    elif isinstance(threshold, float):
+        threshold = f"relative reduction {_pct(threshold)}"
+    return (f"<p>Model effects: <code>{esc(fmt(d.get('model_effects', {})))}</code>. Error measure: "
+            f"<strong>{esc(measure.get('name', '?'))}</strong>: {esc(measure.get('description', ''))}. "
+            f"A reduction counts from: {esc(threshold)}.</p>")
+
+
+def _ranking(d: dict) -> str:
+    rows = [[i + 1, r.get("effect"), _fitted(r.get("fitted")), r.get("heldout_error_before"),
+             r.get("heldout_error_after"), _pct(r.get("relative_reduction")), r.get("identifiable")]
+            for i, r in enumerate(d["ranking"])]
+    return table(["rank", "effect", "fitted parameters", "held-out error before", "after",
+                  "relative reduction", "identifiable"], rows)
+
+
+def diagnosis_section(files: dict[str, list[str]]) -> str:
+    """Per dataset: verdict, error measure, ranking of the missing effects, signatures, figures."""
+    named, parts = figures_by_name(files["diagnosis_figures"]), []
+    for path in files["diagnosis"]:
+        d = read_diagnosis(path)
+        name = d["dataset"]
+        parts += [f"<h3>{esc(name)}</h3>", f'<p class="verdict">{esc(d.get("verdict", ""))}</p>',
+                  _terms(d), "<h4>Missing effects, best first</h4>", _ranking(d)]
+        if d.get("not_tested"):
+            rows = [[t.get("effect"), t.get("reason")] for t in d["not_tested"]]
+            parts += ["<h4>Not tested</h4>", table(["effect", "reason"], rows)]
+        if d.get("signatures"):
+            parts += ["<h4>Residual signatures</h4>", nested_tables(d["signatures"])]
+        parts += [figure(named[f"{name}_{kind}.png"], f"{name}: {label}")
+                  for kind, label in FIGURES if f"{name}_{kind}.png" in named]
+    return "\n".join(parts)
+
+
+def ledger_section(files: dict[str, list[str]]) -> str:
+    """Per dataset: held-out error of every model revision on the same measurements, oldest first."""
+    named, parts = figures_by_name(files["diagnosis_figures"]), []
+    for path in files["diagnosis"]:
+        d = read_diagnosis(path)
+        name = d["dataset"]
+        rows = [[e.get("revision"), str(e.get("model_hash", ""))[:12], e.get("model_effects"),
+                 e.get("heldout_error")] for e in d.get("ledger") or []]
+        parts += [f"<h3>{esc(name)}</h3>",
+                  table(["revision", "model hash", "model effects", "held-out error"], rows)]
+        if f"{name}_ledger.png" in named:
+            parts.append(figure(named[f"{name}_ledger.png"],
+                                f"{name}: held-out error of every model revision"))
+    return "\n".join(parts)

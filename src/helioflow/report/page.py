@@ -1,0 +1,239 @@
+"""The experiment report: one self-contained HTML file (figures inline, no external CSS or JS).
+
+`write_report` takes the files of each section as explicit lists (rule `report` passes
+`helioflow.workflow.report_inputs(config)`, which decides what a config has) plus the folder of
+benchmark files, and writes results/<experiment>/report.html with the sections
+
+    Datasets            figures/datasets/<d>.png and a table read from datasets/<d>.h5
+                        (+ paint/<d>_centroids.json of PAINT datasets)
+    Table 1             tables/table1.md (rendered) and table1.csv (embedded download)
+    Sample grids        figures/<d>/<model>_samples.png
+    PSNR / sun position figures/<d>/<model>_psnr.png (+ figures/data_efficiency.png)
+    Recovery            recovery/<d>.json: what drt recovered of each synthetic heliostat, as tables
+    Diagnosis           diagnosis/<d>.json: verdict, ranking, signatures; figures/diagnosis/<d>_*.png
+    Error ledger        the `ledger` of each diagnosis JSON and figures/diagnosis/<d>_ledger.png
+    Field flux maps     field/flux.png (truth, ideal, hybrid maps beside their differences to truth)
+                        and field/metrics.json as tables
+    Leave-one-out       figures/leave_one_out/<d>.png and leave_one_out/<d>.csv (held-out scores
+                        per real image and network) as a table
+    Run times           benchmarks/<rule>/<wildcards>.tsv (snakemake's benchmark files)
+
+A section whose files are all absent from the inputs says "Not part of this experiment".
+Unreadable or malformed inputs raise DataError naming the file.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+
+from helioflow.data.hdf5 import SPLITS, read_dataset
+from helioflow.errors import DataError
+from helioflow.io import write_text_atomic
+from helioflow.report.diagnosis import diagnosis_section, ledger_section
+from helioflow.report.html import (
+    download,
+    esc,
+    figure,
+    fixed,
+    markdown,
+    nested_tables,
+    page,
+    read_bytes,
+    read_json,
+    table,
+)
+
+SECTIONS = ("datasets", "dataset_figures", "paint_centroids", "table", "samples", "psnr", "data_efficiency",
+            "recovery", "diagnosis", "diagnosis_figures", "field", "leave_one_out")
+ABSENT = '<p class="absent">Not part of this experiment.</p>'
+
+
+def _paint_centroids(path: str) -> str:
+    """Per PAINT image: measured and UTIS centroid offsets from the ideal trace, spot angles."""
+    data = read_json(path)
+    images = data.get("images") if isinstance(data, dict) else None
+    if not isinstance(images, list):
+        raise DataError(f"{path}: not a PAINT centroid check (written by `paint-centroids`): "
+                        "no `images` list")
+    rows = [[r.get("id"), r.get("target"),
+             *(fixed(r.get(k), 1) for k in ("azimuth_deg", "elevation_deg")),
+             *(fixed(r.get(k), 2) for k in ("image_right_mrad", "image_up_mrad", "image_mrad", "utis_mrad")),
+             *(fixed((r.get("spot_angle_deg") or {}).get(k), 1) for k in ("ideal", "measured"))]
+            for r in images]
+    header = ["id", "target", "sun azimuth (deg)", "sun elevation (deg)", "right (mrad)", "up (mrad)",
+              "offset (mrad)", "UTIS offset (mrad)", "spot angle ideal (deg)", "spot angle measured (deg)"]
+    return (f"<h3>PAINT centroid check: {esc(Path(path).stem.removesuffix('_centroids'))}</h3>"
+            "<p>Spot centroid of each measured image and of PAINT's UTIS estimate minus that of the ideal "
+            "heliostat's trace, in mrad as seen from the heliostat; spot orientation in degrees.</p>"
+            + table(header, rows))
+
+
+def _datasets_section(files: dict[str, list[str]]) -> str:
+    """Table of images per split, sun ranges and heliostat; the sample figures; PAINT checks."""
+    rows = []
+    for path in files["datasets"]:
+        ds = read_dataset(path)
+        counts = [int((np.asarray(ds.split) == s).sum()) for s in SPLITS]
+        rows.append([ds.attrs.get("dataset", Path(path).stem), ds.attrs.get("heliostat", "?"),
+                     ds.attrs.get("source", "?"), len(ds.images), *counts,
+                     f"{ds.azimuth_deg.min():.1f} … {ds.azimuth_deg.max():.1f}",
+                     f"{ds.elevation_deg.min():.1f} … {ds.elevation_deg.max():.1f}",
+                     "×".join(map(str, ds.images.shape[1:]))])
+    parts = [table(["dataset", "heliostat", "source", "images", *SPLITS, "sun azimuth (deg)",
+                    "sun elevation (deg)", "image size"], rows)]
+    parts += [figure(p, f"dataset {Path(p).stem}: sample images") for p in files["dataset_figures"]]
+    parts += [_paint_centroids(p) for p in files["paint_centroids"]]
+    return "\n".join(parts)
+
+
+def _table1_section(files: dict[str, list[str]]) -> str:
+    """Table 1 from its Markdown, and its CSV as an embedded download."""
+    return "\n".join(markdown(read_bytes(p).decode("utf-8")) if Path(p).suffix == ".md"
+                     else f"<p>The table with full precision: {download(p)}</p>" for p in files["table"])
+
+
+def _model_figures(paths: list[str], suffix: str) -> str:
+    """figures/<dataset>/<model><suffix>.png, captioned '<dataset>: <model>'."""
+    return "\n".join(figure(p, f"{Path(p).parent.name}: {Path(p).stem.removesuffix(suffix)}") for p in paths)
+
+
+def _samples_section(files: dict[str, list[str]]) -> str:
+    return _model_figures(files["samples"], "_samples")
+
+
+def _psnr_section(files: dict[str, list[str]]) -> str:
+    parts = [_model_figures(files["psnr"], "_psnr")]
+    if files["data_efficiency"]:
+        parts.append("<h3>Data efficiency</h3>")
+        parts += [figure(p, "PSNR against the number of training images") for p in files["data_efficiency"]]
+    return "\n".join(parts)
+
+
+def _recovery_section(files: dict[str, list[str]]) -> str:
+    """Per synthetic dataset: drt's fitted heliostat against the true one (scoring/recovery.py)."""
+    parts = []
+    for path in files["recovery"]:
+        data = read_json(path)
+        if not isinstance(data, dict) or "tracking_mrad" not in data:
+            raise DataError(f"{path}: not a recovery JSON (written by `helioflow recovery --output`)")
+        parts += [f"<h3>{esc(Path(path).stem)}</h3>", nested_tables(data)]
+    return "\n".join(parts)
+
+
+def _field_section(files: dict[str, list[str]]) -> str:
+    """The field figure (compose_field draws the maps beside their differences to truth) and the
+    metrics against truth, any nesting of them, as tables."""
+    parts = []
+    for path in files["field"]:
+        if Path(path).suffix == ".png":
+            parts.append(figure(path, "field flux maps on the receiver per sun design point"))
+        else:
+            parts += ["<h3>Metrics against truth</h3>", nested_tables(read_json(path))]
+    return "\n".join(parts)
+
+
+def _leave_one_out_section(files: dict[str, list[str]]) -> str:
+    """Per leave-one-out dataset: the figure of held-out images and the scores as a table."""
+    parts = []
+    for path in files["leave_one_out"]:
+        name = Path(path).stem
+        if Path(path).suffix == ".png":
+            parts.append(figure(path, f"{name}: each image held out and predicted by models fitted on the others"))
+            continue
+        try:
+            records = list(csv.DictReader(io.StringIO(read_bytes(path).decode("utf-8"))))
+        except UnicodeDecodeError as exc:
+            raise DataError(f"{path}: not a leave-one-out CSV: {exc}") from None
+        keys = ("id", "network", "psnr", "centroid_mrad", "misplaced_flux")
+        if not records or any(k not in records[0] for k in keys):
+            raise DataError(f"{path}: not a leave-one-out CSV (written by `leave-one-out`): needs columns "
+                            f"{', '.join(keys)}")
+        rows = [[r["id"], r["network"], fixed(_number(r["psnr"]), 2), fixed(_number(r["centroid_mrad"]), 2),
+                 fixed(_number(r["misplaced_flux"]), 3)] for r in records]
+        parts += [f"<h3>Held-out scores: {esc(name)}</h3>",
+                  table(["held-out id", "network", "PSNR (dB)", "centroid error (mrad)", "misplaced flux"], rows)]
+    return "\n".join(parts)
+
+
+# (anchor, heading, the input sections it shows, renderer of the files by section)
+LAYOUT = (
+    ("datasets", "Datasets", ("datasets", "dataset_figures", "paint_centroids"), _datasets_section),
+    ("table1", "Table 1", ("table",), _table1_section),
+    ("samples", "Sample grids", ("samples",), _samples_section),
+    ("psnr", "PSNR against sun position", ("psnr", "data_efficiency"), _psnr_section),
+    ("recovery", "What drt recovered of the true heliostats", ("recovery",), _recovery_section),
+    ("diagnosis", "Diagnosis: which effect is missing", ("diagnosis",), diagnosis_section),
+    ("ledger", "Error ledger", ("diagnosis",), ledger_section),
+    ("field", "Field flux maps", ("field",), _field_section),
+    ("leave_one_out", "Leave-one-out on real images", ("leave_one_out",), _leave_one_out_section),
+)
+
+
+def _number(text: str | None) -> float | None:
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return None
+
+
+def run_times(benchmark_dir: str | os.PathLike) -> list[dict]:
+    """One row per benchmark file under benchmark_dir (<rule>/<wildcards>.tsv): rule, wildcards,
+    mean wall seconds `s` over the file's repeats and the largest max_rss (MB, None if absent)."""
+    root, rows = Path(benchmark_dir), []
+    for path in sorted(root.rglob("*.tsv")):
+        try:
+            records = list(csv.DictReader(io.StringIO(path.read_text(encoding="utf-8")), delimiter="\t"))
+        except (OSError, UnicodeDecodeError) as exc:
+            raise DataError(f"{path}: cannot read benchmark file: {exc}") from None
+        seconds = [_number(r.get("s")) for r in records]
+        if not records or None in seconds:
+            raise DataError(f"{path}: not a snakemake benchmark file (needs a column `s` of seconds)")
+        rss = [v for v in (_number(r.get("max_rss")) for r in records) if v is not None]
+        rel = path.relative_to(root).with_suffix("")
+        rows.append({"rule": rel.parts[0], "wildcards": "/".join(rel.parts[1:]),
+                     "s": sum(seconds) / len(seconds), "max_rss_mb": max(rss) if rss else None})
+    return rows
+
+
+def _hms(seconds: float) -> str:
+    minutes, s = divmod(round(seconds), 60)
+    return f"{minutes // 60}:{minutes % 60:02d}:{s:02d}"
+
+
+def _run_times_section(benchmark_dir: str | os.PathLike | None) -> str:
+    """Per job: rule, wildcards, wall time, peak memory; and the summed job time."""
+    rows = run_times(benchmark_dir) if benchmark_dir is not None and Path(benchmark_dir).is_dir() else []
+    if not rows:
+        return '<p class="absent">No benchmark files yet.</p>'
+    total = sum(r["s"] for r in rows)
+    body = [[r["rule"], r["wildcards"], fixed(r["s"], 2), _hms(r["s"]), fixed(r["max_rss_mb"], 1)]
+            for r in rows]
+    return ("<p>Wall time of each job from snakemake's benchmark files (mean over repeats); jobs that ran "
+            "in parallel overlap, so the total is the summed job time, not the elapsed time.</p>"
+            + table(["rule", "wildcards", "s", "h:m:s", "max RSS (MB)"], body,
+                    total=["total", f"{len(rows)} jobs", fixed(total, 2), _hms(total), None]))
+
+
+def build_report(inputs: dict[str, list[str]], benchmark_dir: str | os.PathLike | None,
+                 experiment: str) -> str:
+    """The report's HTML from the files of each section (keys of SECTIONS; missing keys are empty)."""
+    unknown = sorted(set(inputs) - set(SECTIONS))
+    if unknown:
+        raise DataError(f"unknown report sections {unknown}; known: {', '.join(SECTIONS)}")
+    files = {key: [str(p) for p in inputs.get(key) or []] for key in SECTIONS}
+    sections = [(anchor, heading, render(files) if any(files[k] for k in shows) else ABSENT)
+                for anchor, heading, shows, render in LAYOUT]
+    sections.append(("runtimes", "Run times", _run_times_section(benchmark_dir)))
+    return page(f"helioflow report: experiment {experiment}", sections)
+
+
+def write_report(output: str | os.PathLike, inputs: dict[str, list[str]],
+                 benchmark_dir: str | os.PathLike | None, experiment: str) -> None:
+    """Write build_report(...) to `output` (temporary name, then renamed)."""
+    text = build_report(inputs, benchmark_dir, experiment)
+    write_text_atomic(output, text)
