@@ -66,6 +66,7 @@ from pathlib import Path
 
 import numpy as np
 
+from helioflow.data.hdf5 import CalibrationDataset
 from helioflow.data.paint import (
     PlaneTarget,
     read_grey_png,
@@ -73,8 +74,13 @@ from helioflow.data.paint import (
     relative_flux_attrs,
     resample_area,
     split_labels,
+    write_imported,
 )
+from helioflow.data.splits import assign_splits
+from helioflow.data.surfaces import HeliostatSpec
 from helioflow.errors import DataError, HelioflowError
+from helioflow.physics.geometry import wgs84_to_enu
+from helioflow.physics.heliostat import ideal_heliostat
 
 log = logging.getLogger(__name__)
 
@@ -293,8 +299,6 @@ class WGS84Origin:
         self.origin = tuple(float(x) for x in origin)
 
     def enu(self, wgs84) -> np.ndarray:
-        from helioflow.physics.geometry import wgs84_to_enu
-
         p = np.asarray(wgs84, dtype=float)
         return wgs84_to_enu(p[..., 0], p[..., 1], p[..., 2], *self.origin)
 
@@ -302,9 +306,6 @@ class WGS84Origin:
 def read_geometry(spec: dict):
     """(the ideal Heliostat (float64), its provenance) of an images dataset's spec: inline
     (`heliostat_geometry`) or from `heliostat_properties` around `origin_wgs84`."""
-    from helioflow.data.surfaces import HeliostatSpec
-    from helioflow.physics.heliostat import ideal_heliostat
-
     name = spec["heliostat"]
     if spec.get("heliostat_geometry") is not None:
         section = spec["heliostat_geometry"]
@@ -356,24 +357,11 @@ def import_images(spec: dict, dataset_path: str | os.PathLike | None = None,
     Returns:
         The dataset written to `dataset_path`, or None when only the geometry was asked for.
     """
-    from helioflow.data.hdf5 import write_dataset
-    from helioflow.data.surfaces import write_heliostat
-
     if dataset_path is None and heliostat_path is None:
         raise HelioflowError("import_images: nothing to write; give a dataset path, a heliostat path or both")
     geometry, source, heliostat_spec = read_geometry(spec)
     ds = build_dataset(spec, geometry) if dataset_path is not None else None
-    written: list[Path] = []
-    try:
-        if ds is not None:
-            write_dataset(dataset_path, ds)
-            written.append(Path(dataset_path))
-        if heliostat_path is not None:
-            write_heliostat(heliostat_path, geometry, heliostat_spec, source=source)
-    except BaseException:
-        for path in written:
-            path.unlink(missing_ok=True)
-        raise
+    write_imported(dataset_path, ds, heliostat_path, geometry, heliostat_spec, source=source)
     return ds
 
 
@@ -390,8 +378,6 @@ def target_plane(target: dict, where: str = "target"):
 
 def build_dataset(spec: dict, geometry):
     """The CalibrationDataset of the images a spec names (resampled, each divided by its peak)."""
-    from helioflow.data.hdf5 import CalibrationDataset
-    from helioflow.data.splits import assign_splits
 
     csv_path = Path(spec["csv"])
     rows, sun_from = read_rows(csv_path, spec["images_dir"], spec.get("site"))

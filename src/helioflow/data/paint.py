@@ -446,18 +446,26 @@ def import_paint(
         spec = {"paint_dir": str(paint_dir), "targets": targets, "dni_w_m2": float(dni_w_m2)}
         ds = build_dataset(measurements, tower, geometry, tuple(resolution), holdout, folder,
                            dataset or heliostat, heliostat, spec)
+    write_imported(dataset_path, ds, heliostat_path, geometry, source=source)
+    return ds
+
+
+def write_imported(dataset_path: str | os.PathLike | None, ds: CalibrationDataset | None,
+                   heliostat_path: str | os.PathLike | None, geometry: Heliostat, spec=None,
+                   source: dict | None = None) -> None:
+    """Write an import's dataset and heliostat (each path optional), both or neither: a failure
+    in the second removes the first, so no half of an import looks complete."""
     written: list[Path] = []
     try:
-        if ds is not None:
+        if dataset_path is not None:
             write_dataset(dataset_path, ds)
             written.append(Path(dataset_path))
         if heliostat_path is not None:
-            write_heliostat(heliostat_path, geometry, source=source)
+            write_heliostat(heliostat_path, geometry, spec, source=source)
     except BaseException:
         for path in written:
             path.unlink(missing_ok=True)
         raise
-    return ds
 
 
 def relative_flux_attrs(geometry: Heliostat, target: PlaneTarget, dni_w_m2: float, source_shape, ids: list[str],
