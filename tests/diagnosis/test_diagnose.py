@@ -99,8 +99,10 @@ def test_two_hidden_effects_take_the_top_two_places():
 def test_a_model_that_matches_the_world_raises_no_alarm():
     """The measurements carry 2 % noise: fitting more parameters must not pass as a finding."""
     world = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 1.0}}
-    _, _, ranking, _ = diagnosis(world, world, noise=0.02).rank()
+    d = diagnosis(world, world, noise=0.02)
+    _, _, ranking, _ = d.rank()
     assert not any(r["meaningful"] for r in ranking), [(r["effect"], r["relative_reduction"]) for r in ranking]
+    assert all(len(key) <= 1 for key in d.fits)  # no single change helps alone: no pair is fitted
 
 
 def test_scale_effects_are_not_identifiable_and_ranked_last():

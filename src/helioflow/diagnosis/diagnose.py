@@ -10,8 +10,11 @@
    most is it; with several, a flexible effect (the surface) that mimics them all in part can win
    alone. So the identifiable candidates are chosen as the best subset (`Diagnosis.select`): the
    best single change, then the best pair whose both members are needed (dropping either costs a
-   meaningful error), kept when it beats the single meaningfully, and so on up to `max_effects`
-   (cost: every compatible subset of that size is fitted, e.g. 28 pairs of 8 candidates). Changes
+   meaningful error), kept when it beats the single meaningfully, and so on up to `max_effects`.
+   A subset holds at least one change that cuts the held-out error meaningfully alone (a forward
+   step from it); subsets of changes that each help too little alone are left to the next
+   revision's diagnosis (the loop). The cost: n single fits, and the pairs that hold one of the m
+   meaningful singles, m (n - 1) - m (m - 1) / 2 (none when nothing is missing). Changes
    that explain the same residual are reported as confounded, with the measurement that would
    separate them; fitted values outside their physical range are flagged. Pure scale effects
    (unidentifiable on images compared by shape) are listed after the others.
@@ -193,9 +196,10 @@ class Diagnosis:
         """The candidates the measurements need (best subset, module doc), in the order a forward
         path adds them."""
         names = [c.label for c in self.tried if REGISTRY[c.effect].identifiable]
+        helps = {n for n in names if is_meaningful(self.error(()), self.error([n]))}  # each fitted alone
         chosen: tuple = ()
         for k in range(1, self.max_effects + 1):
-            subsets = [s for s in itertools.combinations(names, k) if self.compatible(s)]
+            subsets = [s for s in itertools.combinations(names, k) if self.compatible(s) and helps & set(s)]
             needed = [s for s in subsets
                       if k == 1 or all(is_meaningful(self.error(set(s) - {m}), self.error(s)) for m in s)]
             if not needed:
