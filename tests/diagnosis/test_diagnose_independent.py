@@ -16,7 +16,7 @@ from helioflow.data.paint import import_paint
 from helioflow.diagnosis.diagnose import diagnose_dataset
 from helioflow.workflow import DIAGNOSIS_DEFAULTS
 
-N_IMAGES, HELD_OUT, RAYS = 32, 8, 600_000
+N_IMAGES, HELD_OUT, RAYS = 24, 6, 400_000
 BELIEVED = {"sunshape": {"kind": "gaussian", "sigma_mrad": 2.51}}  # the world's sun unless a case changes it
 SETTINGS = {**DIAGNOSIS_DEFAULTS, "fit_images": N_IMAGES - HELD_OUT, "heldout_images": HELD_OUT}
 _tilts = np.random.default_rng(5).normal(0.0, 2.0, (2, 4, 2))  # facet tilts (mrad) of the canting cases
