@@ -10,6 +10,7 @@ from helioflow.data.hdf5 import CalibrationDataset, write_dataset
 from helioflow.errors import DataError
 from helioflow.models import registry
 from helioflow.models.nearest import Nearest
+from helioflow.scoring import evaluation
 from helioflow.scoring.evaluation import evaluate_model, grid_indices
 from helioflow.scoring.metrics import PSNR_MAX_DB
 from helioflow.scoring.table import build_table
@@ -97,7 +98,7 @@ def test_unconditioned_model_scored_by_best_sample(trained, monkeypatch):
     nearest, info = registry.load_model(trained / "nearest.pt")
     model = Unconditioned(nearest.config, nearest.image_shape)
     model.load_state_dict(nearest.state_dict())
-    monkeypatch.setattr(registry, "load_model", lambda path, device="cpu": (model, dict(info, network="gan")))
+    monkeypatch.setattr(evaluation, "load_model", lambda path, device="cpu": (model, dict(info, network="gan")))
     result = evaluate_model(trained / "nearest.pt", trained / "toy.h5", *outputs(trained, "gan_toy"), gan_samples=8)
     assert result["controllable"] is False and result["samples"] == 8 and "best" in result["note"]
     # all 6 training images are among the 8 samples, so each train image finds itself
