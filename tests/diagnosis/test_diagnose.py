@@ -74,7 +74,7 @@ CASES = {
 @pytest.mark.parametrize("hidden", list(CASES))
 def test_a_hidden_effect_is_ranked_first_and_fitting_it_halves_the_heldout_error(hidden):
     world, model = CASES[hidden]
-    before, _, ranking, _ = diagnosis(world, model, max_effects=1).rank()  # the best single change
+    _, _, ranking, _ = diagnosis(world, model, max_effects=1).rank()  # the best single change
     top = ranking[0]
     assert top["effect"] == hidden, [(r["effect"], round(r["relative_reduction"], 3)) for r in ranking]
     assert top["relative_reduction"] >= 0.5

@@ -66,7 +66,6 @@ class Target:
     def centroid(self, images: Tensor) -> Tensor:
         """(N, H, W) flux -> (N, 2) flux-weighted centroid (u, v) in target coordinates (m)."""
         row_col = pixel_centroid(images)
-        rows, cols = self.resolution
         pw, ph = self.pixel_size
         return torch.stack(((row_col[..., 1] + 0.5) * pw - self.width / 2,
                             self.height / 2 - (row_col[..., 0] + 0.5) * ph), dim=-1)
