@@ -164,7 +164,8 @@ def _check_references(config: dict, source: str) -> None:
             known = ", ".join(config["heliostats"])
             raise ConfigError(f"{where}.heliostat = {ds['heliostat']!r} is not a heliostat in config; known: {known}")
         _check_traced(ds, where)
-        _check_sees_target(config, ds["heliostat"], where)
+        _check_sees_target(config["heliostats"][ds["heliostat"]]["position_m"], config["target"],
+                           f"heliostat {ds['heliostat']!r}", where)
     if config.get("field"):
         _check_field(config, f"{source}: field")
 
@@ -185,13 +186,13 @@ def _check_traced(ds: dict, where: str) -> None:
         raise ConfigError(f"{where}.trace.rays = {ds['trace'].get('rays')!r}: bilinear splatting needs rays > 0")
 
 
-def _check_sees_target(config: dict, heliostat: str, where: str) -> None:
-    """The dataset's heliostat is in front of the calibration target (on the side its normal points to)."""
-    position, target = config["heliostats"][heliostat]["position_m"], config["target"]
+def _check_sees_target(position: list, target: dict, heliostat: str, where: str) -> None:
+    """A heliostat at `position` (m) is in front of the calibration target (on the side its normal
+    points to); `heliostat` names it in the error."""
     distance = facing(position, target["center_m"], target["normal"])
     if distance <= 0:
         place = "in the target plane" if distance == 0 else f"{-distance:g} m behind the target"
-        raise ConfigError(f"{where}: heliostat {heliostat!r} at position_m {position} is {place} (target.center_m "
+        raise ConfigError(f"{where}: {heliostat} at position_m {position} is {place} (target.center_m "
                           f"{target['center_m']}, target.normal {target['normal']} points towards the heliostats): "
                           "it cannot see the target")
 
@@ -314,11 +315,7 @@ def _check_images_dataset(config: dict, name: str, where: str) -> None:
             raise ConfigError(str(exc)) from None
         for key in ERROR_KEYS + ("seed",):
             ds["heliostat"].pop(key, None)
-        position, target = ds["heliostat"]["position_m"], ds["target"]
-        if facing(position, target["center_m"], target["normal"]) <= 0:
-            raise ConfigError(f"{where}: heliostat position_m {position} is not in front of the target (target.center_m "
-                              f"{target['center_m']}, target.normal {target['normal']} points towards the heliostat): "
-                              "it cannot see the target")
+        _check_sees_target(ds["heliostat"]["position_m"], ds["target"], "the heliostat", where)
     if ds.get("splits") and ds.get("holdout"):
         raise ConfigError(f"{where}: give splits (rules on the sun positions) or holdout (image ids), not both")
     if name in config["heliostats"]:

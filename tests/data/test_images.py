@@ -323,7 +323,8 @@ def test_leave_one_out_of_own_images_makes_a_fold_per_image_sharing_one_heliosta
     (lambda d: d.update(splits={"interpolation": {"fraction": 0.2}}), ("give splits (rules on the sun positions) or "
                                                                       "holdout (image ids), not both")),
     (lambda d: d.pop("target"), "datasets.own: missing key 'target'"),
-    (lambda d: d["target"].update(normal=[0.0, -1.0, 0.0]), "is not in front of the target"),
+    (lambda d: d["target"].update(normal=[0.0, -1.0, 0.0]), ("datasets.own: the heliostat at position_m "
+                                                           "[0.0, 30.0, 0.0] is 30 m behind the target")),
     (lambda d: d.update(images_dir="no/such/folder"), "datasets.own.images_dir = 'no/such/folder': no such folder"),
     (lambda d: d.update(csv="no/such.csv"), "datasets.own.csv: no/such.csv does not exist"),
     (lambda d: d["heliostat"].update(position_m=[0.0, 30.0]), "datasets.own.heliostat.position_m = [0.0, 30.0]"),

@@ -80,7 +80,6 @@ from helioflow.data.splits import assign_splits
 from helioflow.data.surfaces import HeliostatSpec
 from helioflow.errors import DataError, HelioflowError
 from helioflow.physics.geometry import wgs84_to_enu
-from helioflow.physics.heliostat import ideal_heliostat
 
 log = logging.getLogger(__name__)
 
@@ -105,7 +104,7 @@ class Row:
     timestamp: str
 
 
-# --- the CSV (light: what snakemake's input functions call) -------------------------------------
+# --- the CSV (also read by snakemake's input functions) ------------------------------------------
 
 
 def read_table(csv_path: str | os.PathLike) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
@@ -311,9 +310,7 @@ def read_geometry(spec: dict):
         section = spec["heliostat_geometry"]
         check_ideal(section, f"datasets.{spec.get('dataset', name)}.heliostat")
         s = HeliostatSpec.from_config(name, section)
-        heliostat = ideal_heliostat(s.rows, s.cols, s.width_m, s.height_m, s.gap_m, s.position_m, s.mount,
-                                    s.canting_focal_distance_m, s.facet_focal_length_m, s.control_points)
-        return heliostat, {"source": "config (ideal)", "spec": section}, s
+        return s.ideal(), {"source": "config (ideal)", "spec": section}, s
     path = spec.get("heliostat_properties")
     if path is None:
         raise HelioflowError("import-images: the spec has neither heliostat_geometry nor heliostat_properties")

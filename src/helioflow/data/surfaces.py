@@ -58,6 +58,12 @@ class HeliostatSpec:
             d.get("canting_error_mrad", 0.0), d.get("seed", 0),
         )
 
+    def ideal(self) -> Heliostat:
+        """The heliostat's ideal (design) geometry, without errors (float64)."""
+        return ideal_heliostat(self.rows, self.cols, self.width_m, self.height_m, self.gap_m, self.position_m,
+                               self.mount, self.canting_focal_distance_m, self.facet_focal_length_m,
+                               self.control_points)
+
 
 def true_heliostat(spec: HeliostatSpec) -> Heliostat:
     """Ideal geometry from the spec plus its seeded random errors (float64).
@@ -68,8 +74,7 @@ def true_heliostat(spec: HeliostatSpec) -> Heliostat:
     facet's deformation has its plane removed (a facet tilt is canting), and the facet tilts of a
     heliostat with several facets have zero mean (a common tilt is a tracking error).
     """
-    ideal = ideal_heliostat(spec.rows, spec.cols, spec.width_m, spec.height_m, spec.gap_m, spec.position_m, spec.mount,
-                            spec.canting_focal_distance_m, spec.facet_focal_length_m, spec.control_points)
+    ideal = spec.ideal()
     n_facets, c = ideal.n_facets, spec.control_points
     rng = np.random.default_rng(spec.seed)
     heights = rng.normal(0.0, spec.deformation_mm * 1e-3, (n_facets, c, c))

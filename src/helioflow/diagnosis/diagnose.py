@@ -234,8 +234,8 @@ class Diagnosis:
     def confounded(self, label: str) -> list[dict]:
         """Candidates that explain the same residual as `label`: each alone cuts the held-out error
         meaningfully, to much the same error (within CONFOUNDED_RATIO of each other), and fitted
-        together they do no meaningfully better than the better one alone. With the measurement
-        that separates them."""
+        together they do no meaningfully better than the better one alone (the pair is fitted when
+        the selection fits pairs, max_effects >= 2). With the measurement that separates them."""
         before, mine = self.error(()), self.error([label])
         if not is_meaningful(before, mine):
             return []
@@ -247,7 +247,7 @@ class Diagnosis:
             theirs = self.error([other])
             if not is_meaningful(before, theirs) or max(theirs, mine) > CONFOUNDED_RATIO * min(theirs, mine):
                 continue
-            if frozenset([label, other]) in self.fits and is_meaningful(min(mine, theirs), self.error([label, other])):
+            if self.max_effects >= 2 and is_meaningful(min(mine, theirs), self.error([label, other])):
                 continue
             out.append({"effect": other, "relative_reduction": 1.0 - theirs / max(before, 1e-30),
                         "separated_by": separating(self.candidate[label].effect, c.effect)})
