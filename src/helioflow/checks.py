@@ -48,10 +48,11 @@ def check_types(settings) -> None:
 
 
 def check_ranges(settings, *, at_least_one=(), counts=(), non_negative=(), positive=(), fraction=(),
-                 below_one=()) -> None:
+                 below_one=(), at_most: dict | None = None) -> None:
     """Integers >= 1 (`at_least_one`) and >= 0 (`counts`), numbers >= 0 (`non_negative`), > 0 (`positive`), in (0, 1]
-    (`fraction`) and in [0, 1) (`below_one`) among the fields of `settings`; ConfigError
-    'field = value: expected ...' for the first one out of range."""
+    (`fraction`) and in [0, 1) (`below_one`) among the fields of `settings`, and sizes within their bound
+    (`at_most`: {field: (largest value, why)}); ConfigError 'field = value: expected ...' for the first
+    one out of range."""
     rules = (
         (at_least_one, lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
         (counts, lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
@@ -65,3 +66,7 @@ def check_ranges(settings, *, at_least_one=(), counts=(), non_negative=(), posit
             value = getattr(settings, name)
             if not ok(value):
                 raise ConfigError(f"{name} = {value!r}: expected {expected}")
+    for name, (largest, why) in (at_most or {}).items():
+        value = getattr(settings, name)
+        if value > largest:
+            raise ConfigError(f"{name} = {value!r}: expected a value <= {largest} ({why})")

@@ -8,6 +8,7 @@ express (a dataset's heliostat exists, effect names and parameters are in the re
 from __future__ import annotations
 
 import copy
+import math
 from pathlib import Path
 
 import yaml
@@ -38,6 +39,7 @@ def validate_config(config: dict, schema_path: str | Path = SCHEMA_PATH, source:
     meaning). PAINT measurement ids given as numbers become strings.
     """
     config = _without_nulls(copy.deepcopy(config))
+    _check_finite(config, source)
     import jsonschema  # here: the commands that take a spec from the Snakefile start without it
 
     schema = yaml.safe_load(Path(schema_path).read_text())
@@ -60,6 +62,19 @@ def _without_nulls(node):
     if isinstance(node, dict):
         return {k: _without_nulls(v) for k, v in node.items() if v is not None}
     return node
+
+
+def _check_finite(node, source: str, path: tuple = ()) -> None:
+    """ConfigError naming the key of the first number that is NaN or infinite (YAML's .nan, .inf):
+    no config number may be either (the schema's minimum / maximum let NaN through)."""
+    if isinstance(node, dict):
+        for key, value in node.items():
+            _check_finite(value, source, (*path, key))
+    elif isinstance(node, list):
+        for i, value in enumerate(node):
+            _check_finite(value, source, (*path, i))
+    elif isinstance(node, float) and not math.isfinite(node):
+        raise ConfigError(f"{source}: {'.'.join(map(str, path))} = {node!r}: expected a finite number")
 
 
 def _check_device(device: str, source: str) -> None:
@@ -93,21 +108,41 @@ def _describe(error) -> str:
         path = list(error.absolute_path)
         elevation = "elevation" in key or (len(path) >= 3 and path[-3] == "positions_deg" and path[-1] == 1)
         hint = " (the sun must be above the horizon)" if elevation and "Minimum" in rule else ""
-        return f"{value}: expected a value {sign} {expected}{hint}"
+        return f"{value}: expected a value {sign} {expected}{hint}{_why(error)}"
     if rule == "type":
         return f"{value}: expected {expected if isinstance(expected, str) else ' or '.join(expected)}"
     if rule in ("minItems", "maxItems"):
-        return f"{value}: expected {'at least' if rule == 'minItems' else 'at most'} {expected} items"
+        shown = value if rule == "minItems" else f"{key} ({len(error.instance)} items)"
+        return f"{shown}: expected {'at least' if rule == 'minItems' else 'at most'} {expected} items{_why(error)}"
+    if rule == "maxProperties":
+        return f"{key} ({len(error.instance)} entries): expected at most {expected}{_why(error)}"
+    if rule == "maxLength":
+        name = f"{key}: name" if "propertyNames" in error.schema_path else key
+        return f"{name} {error.instance[:20]!r}... ({len(error.instance)} characters): expected at most {expected} characters{_why(error)}"
     if rule == "oneOf":
+        inner = [e for e in error.context if e.validator not in ("type", "const", "enum", "oneOf")]
+        if len(inner) == 1:  # one alternative is of the value's type: why that one refuses it
+            return _describe(inner[0])
         return f"{value}: expected one of: " + "; ".join(_schema_text(s) for s in expected)
     return f"{value}: {error.message}"
+
+
+def _why(error) -> str:
+    """' (the reason)' of a bound: the `bound` annotation of the schema that sets it."""
+    return f" ({error.schema['bound']})" if "bound" in error.schema else ""
 
 
 def _schema_text(schema: dict) -> str:
     if "const" in schema:
         return repr(schema["const"])
     if "$ref" in schema:
-        return schema["$ref"].rsplit("/", 1)[-1]
+        name = schema["$ref"].rsplit("/", 1)[-1]
+        definition = yaml.safe_load(SCHEMA_PATH.read_text())["definitions"].get(name, {})
+        if "minimum" in definition or "exclusiveMinimum" in definition:
+            low = (f">= {definition['minimum']}" if "minimum" in definition else f"> {definition['exclusiveMinimum']}")
+            high = f" and <= {definition['maximum']}" if "maximum" in definition else ""
+            return f"a number {low}{high}"
+        return name
     return schema.get("type", "value")
 
 

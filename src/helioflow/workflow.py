@@ -8,6 +8,8 @@ rerun trigger), and tests can call them without snakemake.
 from __future__ import annotations
 
 import copy
+import functools
+import json
 import re
 from pathlib import Path
 
@@ -416,7 +418,24 @@ def field_size(field: dict) -> int:
 
 
 def field_positions(field: dict, template: dict) -> list[list[float]]:
-    """Pivot positions, (n, 3) ENU in m rounded to the mm, of the field's layout.
+    """Pivot positions of the field's layout (`layout_positions`), computed once per layout and
+    template mirror: snakemake asks for them for every job while it builds the DAG."""
+    layout = field["layout"]
+    csv = Path(layout["csv"]) if layout["kind"] == "csv" else None
+    stamp = (csv.stat().st_mtime_ns, csv.stat().st_size) if csv is not None and csv.is_file() else None
+    key = json.dumps([layout, mirror_size(template) if template else None, stamp], sort_keys=True)
+    return [list(row) for row in _positions_of(key)]
+
+
+@functools.lru_cache(maxsize=8)
+def _positions_of(key: str) -> list[list[float]]:
+    layout, mirror, _ = json.loads(key)
+    return layout_positions(layout, mirror)
+
+
+def layout_positions(layout: dict, mirror: list[float] | None) -> list[list[float]]:
+    """Pivot positions, (n, 3) ENU in m rounded to the mm, of a field layout (config field.layout)
+    for a template mirror of `mirror` = (width, height) m.
 
     fermat / radial: helioflow.physics.layout.fermat_spiral / radial_staggered of layout.n
     heliostats outside min_radius_m in a sector of sector_deg around north, pivots pivot_height_m
@@ -426,7 +445,7 @@ def field_positions(field: dict, template: dict) -> list[list[float]]:
     """
     from helioflow.physics import layout as geometry
 
-    spec = {**LAYOUT_DEFAULTS, **field["layout"]}
+    spec = {**LAYOUT_DEFAULTS, **layout}
     if spec["kind"] == "list":
         positions = geometry.positions_from_list(spec["positions"], "field.layout.positions")
     elif spec["kind"] == "csv":
@@ -437,11 +456,11 @@ def field_positions(field: dict, template: dict) -> list[list[float]]:
     else:
         spacing = spec["spacing_m"]
         if spacing == "auto":
-            spacing = geometry.min_spacing(*mirror_size(template), spec["clearance_m"])
+            spacing = geometry.min_spacing(*mirror, spec["clearance_m"])
         generate = geometry.fermat_spiral if spec["kind"] == "fermat" else geometry.radial_staggered
         positions = generate(spec["n"], spacing, spec["min_radius_m"], spec["sector_deg"],
                              spec["pivot_height_m"])
-    return [[round(float(x), 3) for x in row] for row in positions]
+    return [[round(x, 3) for x in row] for row in positions.tolist()]
 
 
 def mirror_size(heliostat: dict) -> tuple[float, float]:
@@ -484,13 +503,16 @@ def field_measured(config: dict) -> list[str]:
 
 
 def field_heliostats(config: dict) -> dict[str, dict]:
-    """The generated `heliostats` entries: field heliostat i is the template's section with its
-    own position and seed (field.seed + i), so that the `surfaces` rule gives it its own errors."""
+    """The generated `heliostats` entries of the measured field heliostats (field_measured): field
+    heliostat i is the template's section with its own position and seed (field.seed + i), so that
+    the `surfaces` rule gives it its own errors. The others need no entry: compose_field builds them
+    from their positions and seeds (compose_field_params)."""
     field = config["field"]
     template = config["heliostats"][field["heliostat"]]
     positions = field_positions(field, template)
-    return {name: {**copy.deepcopy(template), "position_m": p, "seed": field["seed"] + i}
-            for i, (name, p) in enumerate(zip(field_names(len(positions)), positions))}
+    names = field_names(len(positions))
+    return {names[i]: {**copy.deepcopy(template), "position_m": positions[i], "seed": field["seed"] + i}
+            for i in measured_indices(field, len(positions))}
 
 
 def _field_effects(effects: dict | None) -> dict:
@@ -520,38 +542,51 @@ def facing(position_m, center_m, normal) -> float:
     return float(np.dot(np.subtract(position_m, center_m), n / np.linalg.norm(n)))
 
 
+def _behind(xyz, plane: dict):
+    """(n,) bool: which of the (n, 3) points are in a plane ({center_m, normal}) or behind it (facing <= 0)."""
+    import numpy as np
+
+    normal = np.asarray(plane["normal"], dtype=float)
+    return (xyz - np.asarray(plane["center_m"], dtype=float)) @ (normal / np.linalg.norm(normal)) <= 0
+
+
 def check_field_geometry(config: dict) -> None:
     """ConfigError naming the heliostat when a field heliostat is behind the receiver (or, measured,
     behind the calibration target), or when two pivots are closer than the mirror diagonal (their
     mirrors would collide: list and csv layouts; fermat and radial keep their spacing)."""
     import numpy as np
+    from scipy.spatial import cKDTree
 
     from helioflow.physics.layout import min_spacing
 
     field = config["field"]
-    heliostats = field_heliostats(config)
-    measured = set(field_measured(config))
+    template = config["heliostats"][field["heliostat"]]
+    positions = field_positions(field, template)
+    names = field_names(len(positions))
+    xyz = np.asarray(positions)
     receiver, target = field["receiver"], config["target"]
-    for name, h in heliostats.items():
-        if facing(h["position_m"], receiver["center_m"], receiver["normal"]) <= 0:
-            raise ConfigError(f"field: heliostat {name} at {h['position_m']} is behind the receiver (field.receiver."
-                              f"center_m {receiver['center_m']}, normal {receiver['normal']}): it cannot reach it")
-        if name in measured and facing(h["position_m"], target["center_m"], target["normal"]) <= 0:
-            raise ConfigError(f"field: measured heliostat {name} at {h['position_m']} is behind the calibration target "
-                              f"(target.center_m {target['center_m']}, normal {target['normal']}): it cannot see it")
-    if field["layout"]["kind"] not in ("list", "csv"):
+    measured = np.zeros(len(xyz), dtype=bool)
+    measured[measured_indices(field, len(xyz))] = True
+    behind = np.nonzero(_behind(xyz, receiver))[0]
+    if len(behind):
+        i = int(behind[0])
+        raise ConfigError(f"field: heliostat {names[i]} at {positions[i]} is behind the receiver (field.receiver."
+                          f"center_m {receiver['center_m']}, normal {receiver['normal']}): it cannot reach it")
+    behind = np.nonzero(measured & _behind(xyz, target))[0]
+    if len(behind):
+        i = int(behind[0])
+        raise ConfigError(f"field: measured heliostat {names[i]} at {positions[i]} is behind the calibration target "
+                          f"(target.center_m {target['center_m']}, normal {target['normal']}): it cannot see it")
+    if field["layout"]["kind"] not in ("list", "csv") or len(xyz) < 2:
         return
-    diagonal = min_spacing(*mirror_size(config["heliostats"][field["heliostat"]]))
-    xy = np.asarray([h["position_m"][:2] for h in heliostats.values()])
-    names = list(heliostats)
-    for start in range(0, len(xy), 1024):  # pairwise distances, a block of rows at a time
-        d = np.linalg.norm(xy[start:start + 1024, None] - xy[None], axis=-1)
-        i, j = np.nonzero((d < diagonal) & (np.arange(start, start + len(d))[:, None] < np.arange(len(xy))[None]))
-        if len(i):
-            a, b = start + int(i[0]), int(j[0])
-            raise ConfigError(f"field.layout: heliostats {names[a]} {heliostats[names[a]]['position_m']} and {names[b]} "
-                              f"{heliostats[names[b]]['position_m']} are {d[i[0], j[0]]:.2f} m apart, less than the "
-                              f"mirror diagonal {diagonal:.2f} m: their mirrors would collide")
+    diagonal = min_spacing(*mirror_size(template))
+    xy = xyz[:, :2]
+    pairs = [(a, b) for a, b in cKDTree(xy).query_pairs(diagonal) if np.linalg.norm(xy[a] - xy[b]) < diagonal]
+    if pairs:
+        a, b = min(pairs)
+        raise ConfigError(f"field.layout: heliostats {names[a]} {positions[a]} and {names[b]} {positions[b]} are "
+                          f"{np.linalg.norm(xy[a] - xy[b]):.2f} m apart, less than the mirror diagonal {diagonal:.2f} m: "
+                          "their mirrors would collide")
 
 
 def expand_field(config: dict) -> dict:
@@ -564,8 +599,9 @@ def expand_field(config: dict) -> dict:
     if not config.get("field"):
         return config
     check_field_geometry(config)
+    generated = set(field_names(field_size(config["field"])))
     for section, entries in (("heliostats", field_heliostats(config)), ("datasets", field_datasets(config))):
-        taken = sorted(set(entries) & set(config[section]))
+        taken = sorted(generated & set(config[section]))
         if taken:
             raise ConfigError(f"field: the generated name {taken[0]!r} is already in {section}; rename that "
                               f"entry (field heliostats and their datasets are named {FIELD_PREFIX}<index>)")
@@ -595,16 +631,16 @@ def compose_field_params(config: dict) -> dict:
     effects of the field (world.effects / model.effects with field.world_effects /
     field.model_effects replacing entries of the same name), trace cells, DNI, seed and device."""
     field = config["field"]
-    heliostats = field_heliostats(config)
+    template = config["heliostats"][field["heliostat"]]
+    positions = field_positions(field, template)
     world = copy.deepcopy(config["world"].get("effects") or {})
     world.update(copy.deepcopy(field.get("world_effects") or {}))
     model = copy.deepcopy(config["model"].get("effects") or {})
     model.update(copy.deepcopy(field.get("model_effects") or {}))
     return {
-        "template": copy.deepcopy(config["heliostats"][field["heliostat"]]),
-        "heliostats": {"names": list(heliostats),
-                       "positions_m": [h["position_m"] for h in heliostats.values()],
-                       "seeds": [h["seed"] for h in heliostats.values()]},
+        "template": copy.deepcopy(template),
+        "heliostats": {"names": field_names(len(positions)), "positions_m": positions,
+                       "seeds": [field["seed"] + i for i in range(len(positions))]},
         "measured": field_measured(config),
         "network": field["network"],
         "receiver": copy.deepcopy(field["receiver"]),

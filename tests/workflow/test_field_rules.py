@@ -19,6 +19,7 @@ from helioflow.workflow import (
     compose_field_params,
     expand_field,
     field_measured,
+    field_positions,
     metrics_paths,
     report_inputs,
     trace_params,
@@ -48,17 +49,21 @@ def tiny():
 
 def test_the_default_field_expands_into_heliostats_with_their_own_positions_and_seeds(default):
     config = expand_field(default)
-    names = [h for h in config["heliostats"] if h.startswith("field_")]
-    assert names == [f"field_{i:03d}" for i in range(50)]
     template = default["heliostats"]["square"]
-    positions = []
-    for i, name in enumerate(names):
+    positions = field_positions(default["field"], template)
+    assert len(positions) == 50
+    names = [h for h in config["heliostats"] if h.startswith("field_")]
+    assert names == field_measured(default)  # only the measured ones need a heliostat file (surfaces rule)
+    for name in names:
+        i = int(name.removeprefix("field_"))
         entry = config["heliostats"][name]
-        assert entry["seed"] == 1000 + i
+        assert entry["seed"] == 1000 + i and entry["position_m"] == positions[i]
         assert {k: v for k, v in entry.items() if k not in ("position_m", "seed")} == {
             k: v for k, v in template.items() if k not in ("position_m", "seed")
         }
-        positions.append(entry["position_m"])
+    params = compose_field_params(config)["heliostats"]
+    assert params["names"] == [f"field_{i:03d}" for i in range(50)] and params["positions_m"] == positions
+    assert params["seeds"] == [1000 + i for i in range(50)]
     import torch
 
     pos = torch.tensor(positions, dtype=torch.float64)
@@ -115,7 +120,7 @@ def test_a_csv_layout_reads_its_file(tiny, tmp_path):
     tiny["field"]["layout"] = {"kind": "csv", "csv": str(tmp_path / "field.csv")}
     tiny["field"]["measured"] = {"fraction": 0.5, "seed": 1}
     config = expand_field(tiny)
-    assert [config["heliostats"][f"field_{i:03d}"]["position_m"] for i in range(3)] == [
+    assert compose_field_params(config)["heliostats"]["positions_m"] == [
         [-3.0, 25.0, 0.0],
         [3.0, 25.0, 0.0],
         [0.0, 30.0, 0.0],

@@ -79,7 +79,10 @@ class GanConfig:
     def __post_init__(self) -> None:
         check_types(self)
         check_ranges(self, at_least_one=("latent", "features", "max_mult"), positive=("lr",),
-                     below_one=("beta1", "beta2"), fraction=("real_label",))
+                     below_one=("beta1", "beta2"), fraction=("real_label",),
+                     at_most={"latent": (4096, "the generator's input width"),
+                              "features": (1024, "channels grow to features x max_mult: weights and memory"),
+                              "max_mult": (64, "channels grow to features x max_mult: weights and memory")})
 
 
 def halvings(image_shape: tuple[int, int]) -> int:

@@ -185,7 +185,13 @@ class NerfConfig:
     def __post_init__(self) -> None:
         check_types(self)
         check_ranges(self, at_least_one=("width", "depth", "samples", "rays", "chunk", "warmup_steps", "decay_steps"),
-                     counts=("frequencies", "view_frequencies"), positive=("slab", "scene_scale", "lr", "lr_final"))
+                     counts=("frequencies", "view_frequencies"), positive=("slab", "scene_scale", "lr", "lr_final"),
+                     at_most={"width": (4096, "weights per layer grow as width squared"),
+                              "depth": (64, "layers evaluated per sample"), "samples": (1024, "samples per ray"),
+                              "rays": (1_000_000, "rays x samples points evaluated per step"),
+                              "chunk": (1_000_000, "rays x samples points held in memory at once"),
+                              "frequencies": (32, "float32 resolves no finer octaves"),
+                              "view_frequencies": (32, "float32 resolves no finer octaves")})
         if self.mount not in MOUNTS:
             raise ConfigError(f"mount = {self.mount!r}: expected one of {', '.join(MOUNTS)}")
         for key in ("heliostat_position_m", "aim_point_m", "target_normal"):

@@ -91,7 +91,15 @@ class PhysicsConfig:
         check_types(self)
         check_ranges(self, at_least_one=("fit_steps", "fit_images", "cells_per_side", "rounds", "fit_rays"),
                      counts=("facet_hops", "pinned_hops", "gauss_newton_steps", "seed"),
-                     non_negative=("coarse_blur_px",))
+                     non_negative=("coarse_blur_px",),
+                     at_most={"fit_steps": (100_000, "traces with gradient per round"),
+                              "rounds": (100, "every round repeats the fit's stages"),
+                              "fit_images": (10_000, "images per dataset"),
+                              "cells_per_side": (512, "surface points per facet: cells_per_side squared"),
+                              "fit_rays": (100_000_000, "rays per image in every step"),
+                              "facet_hops": (1000, "every hop is a fit of its own"),
+                              "pinned_hops": (1000, "every hop is a fit of its own"),
+                              "gauss_newton_steps": (1000, "each step builds a Jacobian by finite differences")})
 
 
 def drt_effects(effects: dict, n_facets: int) -> dict:

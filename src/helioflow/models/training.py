@@ -54,7 +54,9 @@ class LoopConfig:
 
     def __post_init__(self) -> None:
         check_types(self)
-        check_ranges(self, at_least_one=("steps", "batch_size", "checkpoint_every"), positive=("max_loss",))
+        check_ranges(self, at_least_one=("steps", "batch_size", "checkpoint_every"), positive=("max_loss",),
+                     at_most={"steps": (1_000_000, "a million steps is days of training on a CPU"),
+                              "batch_size": (4096, "images held per step")})
 
 
 def step_generator(seed: int, step: int) -> torch.Generator:
