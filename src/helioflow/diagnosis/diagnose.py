@@ -385,6 +385,32 @@ def update_ledger(path: str | os.PathLike, dataset_hash: str, effects: dict, err
     return same
 
 
+OWN_HOLDOUT_EVERY = 4  # a dataset that holds no images out: the diagnosis holds out every 4th training image
+
+
+def scoring_split(ds) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(indices the fits use, indices they are scored on, what the JSON says of the latter).
+
+    The held-out splits (interpolation and extrapolation) when the dataset has them. A dataset that
+    holds none out (own images without splits or holdout, a PAINT dataset without holdout: every
+    image trains the networks) is scored on every OWN_HOLDOUT_EVERY-th training image, which the
+    diagnosis' fits then leave out; with a single image, on that image itself (a training error: no
+    test of a candidate against images it was not fitted to)."""
+    train = ds.indices("train")
+    heldout = np.concatenate((ds.indices("interpolation"), ds.indices("extrapolation")))
+    if len(heldout):
+        return train, heldout, {"source": "held-out splits", "images": int(len(heldout)), "note": ""}
+    if len(train) < 2:
+        return train, train, {"source": "the training image", "images": int(len(train)),
+                              "note": ("The dataset has one image and holds none out: every error below is a "
+                                       "training error, and no candidate is tested on an image it was not fitted to.")}
+    own = train[1::OWN_HOLDOUT_EVERY]
+    return np.setdiff1d(train, own), own, {
+        "source": f"every {OWN_HOLDOUT_EVERY}th training image", "images": int(len(own)),
+        "note": (f"The dataset holds no images out (every image trains the networks), so the diagnosis held out "
+                 f"{len(own)} of its {len(train)} images (every {OWN_HOLDOUT_EVERY}th) to score the candidates.")}
+
+
 def _measurements(ds, index: np.ndarray, scale: float, device: str | torch.device = "cpu") -> Measurements:
     return Measurements((torch.as_tensor(ds.images[index]) / scale).to(device),
                         torch.as_tensor(ds.azimuth_deg[index]).float().to(device),
@@ -405,8 +431,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
 
     ds = read_dataset(dataset_path)
     read_ledger(ledger_path)  # a broken ledger stops the rule before the fits, not after them
-    train_index = ds.indices("train")
-    heldout_index = np.concatenate((ds.indices("interpolation"), ds.indices("extrapolation")))
+    train_index, heldout_index, heldout = scoring_split(ds)
     scale = float(ds.images[train_index].max())
     pick = lambda index, n: index[np.linspace(0, len(index) - 1, min(n, len(index))).round().astype(int)]
     device = resolve_device(device)
@@ -437,6 +462,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
         "error_measure": ERROR_MEASURE,
         "threshold": {"relative_reduction": THRESHOLD, "absolute_reduction": ABSOLUTE_FLOOR},
         "heldout_error": before,
+        "heldout": heldout,
         "model_fitted": _summarised(model.fitted_values()),
         "ranking": ranking,
         "not_tested": skipped,
@@ -447,7 +473,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
                        "per_image": {"azimuth_deg": ds.azimuth_deg.tolist(), "elevation_deg": ds.elevation_deg.tolist(),
                                      "split": ds.split.tolist(),
                                      **{k: np.round(v, 5).tolist() for k, v in sig.items()}}},
-        "verdict": verdict(ranking, summary),
+        "verdict": (heldout["note"] + " " if heldout["note"] else "") + verdict(ranking, summary),
         "ledger": ledger,
     }
     error = misplaced_flux(pred, everything.images, lost).numpy()
