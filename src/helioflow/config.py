@@ -321,7 +321,7 @@ def _check_images_dataset(config: dict, name: str, where: str) -> None:
     or heliostat_properties with origin_wgs84) that sees the target, splits or holdout (not both);
     its folder and CSV exist, the CSV's timestamps have a site, and its heliostat file
     (surfaces/<dataset>.h5) is no other heliostat's."""
-    from helioflow.data.images import ERROR_KEYS, TIMESTAMP, check_ideal, read_table
+    from helioflow.data.images import ERROR_KEYS, TIMESTAMP, check_files, check_ideal, read_table
 
     ds = config["datasets"][name]
     extra = sorted(((_TRACE_KEYS - {"splits"}) | {"paint_dir", "targets"}) & set(ds))
@@ -364,6 +364,7 @@ def _check_images_dataset(config: dict, name: str, where: str) -> None:
         raise ConfigError(f"{where}.images_dir = {ds['images_dir']!r}: no such folder")
     try:
         columns = read_table(ds["csv"])[0]
+        check_files(ds["csv"], ds["images_dir"])
     except DataError as exc:
         raise ConfigError(f"{where}.csv: {exc}") from None
     if TIMESTAMP in columns and not {"azimuth_deg", "elevation_deg"} <= set(columns) and "site" not in ds:

@@ -26,6 +26,16 @@ def results_dir(config: dict) -> str:
     return f"results/{config['experiment']}"
 
 
+def check_results_dir(config: dict) -> None:
+    """ConfigError when results/<experiment>, or results itself, exists and is not a folder: every
+    output of the experiment goes there."""
+    path = Path(results_dir(config))
+    for folder in (path.parent, path):
+        if folder.exists() and not folder.is_dir():
+            raise ConfigError(f"{folder} is a file, not a folder: the outputs of experiment {config['experiment']!r} go "
+                              f"under {path}/; move the file away or choose another experiment name")
+
+
 def _dataset(config: dict, dataset: str) -> dict:
     if dataset not in config["datasets"]:
         known = ", ".join(config["datasets"])

@@ -96,3 +96,23 @@ def test_elevation_bands_hold_out_contiguous_gaps_inside_the_range():
     assert (labels[el > 75] == "extrapolation").all()
     with pytest.raises(ConfigError, match="lowest or highest"):
         assign_splits(az, el, {"interpolation": {"elevation_bands_deg": [[0, 10]]}}, seed=0)
+
+
+def test_the_docs_dataset_table_gives_the_splits_the_default_config_makes():
+    """docs/data.md's table of the default datasets: its train / interp. / extrap. column is what
+    config.yaml's sun positions and split rules give (no tracing needed)."""
+    from pathlib import Path
+
+    from helioflow.config import load_config
+    from helioflow.data.synthetic import sun_positions
+
+    repo = Path(__file__).resolve().parents[2]
+    config = load_config(repo / "config.yaml")
+    rows = {line.split("|")[1].strip(): line.split("|")[-2].strip()
+            for line in (repo / "docs" / "data.md").read_text().splitlines() if line.startswith("| ")}
+    for name in ("sanity_check", "semi_sphere"):
+        ds = config["datasets"][name]
+        az, el = sun_positions(ds["sun"], config["seed"])
+        split = assign_splits(az, el, ds["splits"], config["seed"])
+        counts = " / ".join(str(int((split == s).sum())) for s in ("train", "interpolation", "extrapolation"))
+        assert rows[name] == counts, f"docs/data.md gives {name}'s splits as {rows[name]}; config.yaml makes {counts}"

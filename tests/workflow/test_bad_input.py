@@ -3,6 +3,7 @@ is accepted where that is what a user means. docs/bad_input.md is the table of t
 messages they really give (regenerate it with `python tests/workflow/test_bad_input.py`)."""
 
 import copy
+import math
 import re
 import shutil
 import sys
@@ -24,7 +25,7 @@ from helioflow.diagnosis.diagnose import update_ledger
 from helioflow.errors import HelioflowError
 from helioflow.io import save_torch_atomic, write_text_atomic
 from helioflow.models.registry import load_model
-from helioflow.workflow import check_readable, existing_upstream_files, expand_config, trace_params
+from helioflow.workflow import check_readable, check_results_dir, existing_upstream_files, expand_config, trace_params
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = yaml.safe_load((Path(__file__).parent / "tiny_config.yaml").read_text())
@@ -45,6 +46,19 @@ def _config(edit: Callable[[dict], object], field: bool = False) -> dict:
 def _paint(**entry) -> Callable[[dict], None]:
     """An edit that adds a PAINT dataset `real` (AA39 from the sample data unless overridden)."""
     return lambda c: c["datasets"].update(real={"source": "paint", "paint_dir": str(PAINT), "heliostat": "AA39", **entry})
+
+
+OWN = REPO / "examples" / "own_images"
+
+
+def _own_images(images_dir: Path = OWN / "images", csv: Path = OWN / "calibration.csv", **target) -> dict:
+    """An images dataset: the worked example's (examples/own_images) unless told otherwise."""
+    return {"source": "images", "images_dir": str(images_dir), "csv": str(csv),
+            "site": {"latitude_deg": 50.9134, "longitude_deg": 6.3868, "altitude_m": 87.0},
+            "target": {"center_m": [0.0, 0.0, 20.0], "normal": [0.0, 1.0, 0.0], "width_m": 4.0, "height_m": 4.0,
+                       **target},
+            "heliostat": {"position_m": [0.0, 60.0, 0.0], "mount": "az_el",
+                          "facets": {"rows": 1, "cols": 1, "width_m": 2.0, "height_m": 2.0}}}
 
 
 def _set(path: str, value) -> Callable[[dict], None]:
@@ -110,6 +124,30 @@ CONFIG_CASES = [
     Case("two field heliostats at one position", lambda c: c["field"]["layout"]["positions"].append([4.0, 24.0, 1.0]),
          r"field\.layout: heliostats field_002 \[4\.0, 24\.0, 1\.0\] and field_005 \[4\.0, 24\.0, 1\.0\] are 0\.00 m "
          r"apart, less than the mirror diagonal 1\.41 m", field=True),
+    Case("`window_m: .nan`", _set("datasets.scan.window_m", math.nan),
+         r"datasets\.scan\.window_m = nan: expected a finite number"),
+    Case("`window_m: .inf`", _set("datasets.scan.window_m", math.inf),
+         r"datasets\.scan\.window_m = inf: expected a finite number"),
+    Case("`window_m: 1e-300`", _set("datasets.scan.window_m", 1e-300),
+         r"datasets\.scan\.window_m = 1e-300: expected a value >= 0\.01 \(a window from 1 cm to 1 km"),
+    Case("a NaN heliostat position", _set("heliostats.small.position_m", [0.0, math.nan, 0.0]),
+         r"heliostats\.small\.position_m\.1 = nan: expected a finite number"),
+    Case("a NaN facet width", _set("heliostats.small.facets.width_m", math.nan),
+         r"heliostats\.small\.facets\.width_m = nan: expected a finite number"),
+    Case("an images target `width_m: .nan`", lambda c: c["datasets"].update(own=_own_images(width_m=math.nan)),
+         r"datasets\.own\.target\.width_m = nan: expected a finite number"),
+    Case("`field.layout.n: 10000000`", lambda c: c["field"].update(layout={"kind": "fermat", "n": 10_000_000,
+                                                                          "min_radius_m": 20.0}),
+         r"field\.layout\.n = 10000000: expected a value <= 200000 \(the largest tower plants have about 170,000 "
+         r"heliostats\)", field=True),
+    Case("`rays: 10**12` with bilinear splatting", _set("datasets.sky.trace.rays", 10**12),
+         r"datasets\.sky\.trace\.rays = 1000000000000: expected a value <= 1000000000 \(rays per image"),
+    Case("`steps: 10**12`", _set("networks.cgan.steps", 10**12),
+         r"networks\.cgan\.steps = 1000000000000: expected a value <= 1000000 \(a million steps is days"),
+    Case("a 300-character dataset name", lambda c: c["datasets"].update({"d" * 300: c["datasets"]["scan"]}),
+         r"datasets: name 'd{20}'\.\.\. \(300 characters\): expected at most 64 characters \(names become file names"),
+    Case("a 300-character experiment name", _set("experiment", "e" * 300),
+         r"experiment 'e{20}'\.\.\. \(300 characters\): expected at most 64 characters"),
 ]
 
 ACCEPTED_CASES = [
@@ -252,6 +290,87 @@ def corrupt_upstream_dataset(tmp: Path, monkeypatch) -> None:
     check_readable(existing_upstream_files(config))
 
 
+def _images_folder(tmp: Path, rows: list[str]) -> dict:
+    """A copy of the worked example's images (examples/own_images) with a CSV of `rows` (file,
+    azimuth, elevation lines): the images dataset that reads them."""
+    shutil.copytree(OWN / "images", tmp / "images", dirs_exist_ok=True)
+    (tmp / "sun.csv").write_text("file,azimuth_deg,elevation_deg\n" + "\n".join(rows) + "\n")
+    return _own_images(tmp / "images", tmp / "sun.csv")
+
+
+def _validate_images(tmp: Path, *rows: str) -> None:
+    validate_config(_config(lambda c: c["datasets"].update(own=_images_folder(tmp, list(rows)))))
+
+
+def csv_row_with_an_absolute_path(tmp: Path) -> None:
+    _validate_images(tmp, "cam_01.png,0,40", "/etc/hostname,10,45")
+
+
+def csv_row_reaching_up_and_out(tmp: Path) -> None:
+    (tmp / "elsewhere.png").write_bytes((OWN / "images" / "cam_02.png").read_bytes())
+    _validate_images(tmp, "cam_01.png,0,40", "../elsewhere.png,10,45")
+
+
+def csv_row_naming_a_link_to_elsewhere(tmp: Path) -> None:
+    (tmp / "elsewhere.png").write_bytes((OWN / "images" / "cam_02.png").read_bytes())
+    images = _images_folder(tmp, ["cam_01.png,0,40", "link.png,10,45"])
+    (tmp / "images" / "link.png").symlink_to(tmp / "elsewhere.png")
+    validate_config(_config(lambda c: c["datasets"].update(own=images)))
+
+
+def one_file_on_two_rows(tmp: Path) -> None:
+    (tmp / "images" / "sub").mkdir(parents=True)
+    _validate_images(tmp, "cam_01.png,0,40", "cam_02.png,5,42", "sub/../cam_01.png,10,45")
+
+
+def _import_one_png(tmp: Path, pixels: np.ndarray, mode: str) -> None:
+    from PIL import Image
+
+    from helioflow.data.images import import_images
+
+    images = _images_folder(tmp, ["cam_01.png,0,40", "odd.png,10,45"])
+    Image.fromarray(pixels, mode).save(tmp / "images" / "odd.png")
+    import_images({"dataset": "own", "heliostat": "own", "images_dir": images["images_dir"], "csv": images["csv"],
+                   "resolution": [16, 16], "target": images["target"], "site": None,
+                   "heliostat_geometry": images["heliostat"], "splits": None, "holdout": [], "seed": 0,
+                   "dni_w_m2": 1000.0}, tmp / "own.h5")
+
+
+def spot_only_in_the_alpha_channel(tmp: Path) -> None:
+    rgba = np.zeros((32, 32, 4), np.uint8)
+    rgba[..., 3] = (255 * np.exp(-((np.mgrid[:32, :32] - 16.0) ** 2).sum(0) / 20)).astype(np.uint8)
+    _import_one_png(tmp, rgba, "RGBA")
+
+
+def sixteen_bit_colour_png(tmp: Path) -> None:
+    """A 48-bit RGB PNG, written by hand: Pillow writes no 16-bit colour."""
+    import struct
+    import zlib
+
+    spot = np.zeros((32, 32, 3), ">u2")
+    spot[12:20, 12:20] = 40000
+    raw = b"".join(b"\x00" + row.tobytes() for row in spot)
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    images = _images_folder(tmp, ["cam_01.png,0,40", "odd.png,10,45"])
+    (tmp / "images" / "odd.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 32, 32, 16, 2, 0, 0, 0))
+                                            + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+    from helioflow.data.images import read_rows
+    from helioflow.data.paint import read_grey_png
+
+    row = read_rows(images["csv"], images["images_dir"])[0][1]
+    read_grey_png(row.path, f"{images['csv']} line {row.line} (image {row.id})", "")
+
+
+def results_path_is_a_file(tmp: Path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp)
+    (tmp / "results").mkdir()
+    (tmp / "results" / "tiny").write_text("notes")
+    check_results_dir(expand_config(validate_config(_config(lambda c: None))))
+
+
 FILE_CASES = [
     Case("a dataset corrupted after the models were trained from it, when snakemake starts", corrupt_upstream_dataset,
          r"^results/tiny/datasets/scan\.h5 is corrupt \(.*\); everything made from it would be rerun and deleted "
@@ -278,6 +397,24 @@ FILE_CASES = [
          r"cannot write .*models/cgan\.pt: the write failed \(is the disk full\?\): \[enforce fail"),
     Case("a full disk while writing a JSON output", full_disk_writing_a_report,
          r"cannot write .*report/metrics\.json: No space left on device"),
+    Case("a CSV row whose file is an absolute path (`/etc/hostname`)", csv_row_with_an_absolute_path,
+         r"config: datasets\.own\.csv: .*sun\.csv line 3: file '/etc/hostname' is /etc/hostname, outside images_dir "
+         r".*/images; every image must lie inside images_dir \(after resolving '\.\.' and links\)"),
+    Case("a CSV row `../elsewhere.png`", csv_row_reaching_up_and_out,
+         r"sun\.csv line 3: file '\.\./elsewhere\.png' is .*/elsewhere\.png, outside images_dir"),
+    Case("a CSV row naming a link to a PNG elsewhere", csv_row_naming_a_link_to_elsewhere,
+         r"sun\.csv line 3: file 'link\.png' is .*/elsewhere\.png, outside images_dir"),
+    Case("one image on two CSV rows (`cam_01.png`, `sub/../cam_01.png`: two ids)", one_file_on_two_rows,
+         r"sun\.csv lines 2 and 4 both name the image .*/images/cam_01\.png; each image is one measurement at one "
+         r"sun position: remove one of the lines"),
+    Case("an RGBA PNG whose spot is only in the alpha channel", spot_only_in_the_alpha_channel,
+         r"sun\.csv line 3 \(image odd\): .*odd\.png has transparent pixels \(\d+\.\d% of them; alpha channel\): "
+         r"helioflow reads the grey level, not the alpha"),
+    Case("a 16-bit RGB PNG", sixteen_bit_colour_png,
+         r"sun\.csv line 3 \(image odd\): .*odd\.png is a 16-bit RGB PNG, which helioflow cannot read at 16 bits"),
+    Case("`results/<experiment>` is a regular file", results_path_is_a_file,
+         r"^results/tiny is a file, not a folder: the outputs of experiment 'tiny' go under results/tiny/; move the "
+         r"file away or choose another experiment name"),
 ]
 
 
@@ -358,11 +495,24 @@ needs_snakemake = pytest.mark.skipif(not (BIN / "snakemake").exists(), reason="s
 @pytest.mark.parametrize("case", [pytest.param(c, id=c.bad_input, marks=_marks(c)) for c in CONFIG_CASES])
 def test_snakemake_dry_run_stops_with_the_one_line(case, tmp_path):
     workdir = _workdir(tmp_path / "run", _config(case.edit, case.field))
-    proc = snakemake(workdir, "-n", "all")
+    peak = tmp_path / "peak_kb"
+    proc = snakemake(workdir, "-n", "all", peak_rss=peak)
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
     assert proc.returncode != 0
     assert lines == [f"helioflow: {_message(case)}"], proc.stderr
     assert not (workdir / "results").exists() and not (workdir / "PWNED").exists()
+    assert int(peak.read_text()) < 500 * 1024, f"snakemake -n peaked at {int(peak.read_text()) // 1024} MB"
+
+
+@needs_snakemake
+def test_a_results_path_that_is_a_file_stops_snakemake_with_one_line(tmp_path):
+    workdir = _workdir(tmp_path / "run", _config(lambda c: None))
+    (workdir / "results").write_text("notes")
+    proc = snakemake(workdir, "-n", "all")
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert proc.returncode != 0 and lines == [
+        "helioflow: results is a file, not a folder: the outputs of experiment 'tiny' go under results/tiny/; move the "
+        "file away or choose another experiment name"], proc.stderr
 
 
 @needs_snakemake

@@ -32,11 +32,19 @@ def _workdir(path: Path, config: dict | None = None) -> Path:
     return path
 
 
-def snakemake(workdir: Path, *args: str, timeout: int = 300) -> subprocess.CompletedProcess:
+PEAK_RSS = ("import resource, subprocess, sys; code = subprocess.call(sys.argv[2:]); "
+            "open(sys.argv[1], 'w').write(str(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)); sys.exit(code)")
+
+
+def snakemake(workdir: Path, *args: str, timeout: int = 300, peak_rss: Path | None = None) -> subprocess.CompletedProcess:
+    """`snakemake args` in `workdir` with the venv's commands; `peak_rss`: a file that receives the
+    peak resident memory (kB) of snakemake's process."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("SNAKEMAKE")}
     env["PATH"] = f"{BIN}{os.pathsep}{env.get('PATH', '')}"
-    return subprocess.run([str(BIN / "snakemake"), *args], cwd=workdir, env=env, capture_output=True,
-                          text=True, timeout=timeout)
+    command = [str(BIN / "snakemake"), *args]
+    if peak_rss is not None:
+        command = [sys.executable, "-c", PEAK_RSS, str(peak_rss), *command]
+    return subprocess.run(command, cwd=workdir, env=env, capture_output=True, text=True, timeout=timeout)
 
 
 def _tiny() -> dict:

@@ -8,6 +8,7 @@ from helioflow.workflow import (
     NAME,
     all_targets,
     check_readable,
+    check_results_dir,
     existing_upstream_files,
     expand_config,
     dataset_heliostat,
@@ -44,6 +45,7 @@ try:
     # the field's heliostats and calibration datasets, and the leave-one-out folds of PAINT
     # datasets, become config entries of their own
     config = expand_config(validate_config(config, workflow.source_path("../schemas/config.schema.yaml")))
+    check_results_dir(config)
     # a corrupt upstream file is reported before snakemake reruns (and first deletes) what was made from it
     check_readable(existing_upstream_files(config))
 except HelioflowError as exc:

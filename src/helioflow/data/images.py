@@ -156,6 +156,23 @@ def _ids(csv_path: Path, table) -> list[tuple[int, str, str]]:
     return out
 
 
+def check_files(csv_path: str | os.PathLike, images_dir: str | os.PathLike) -> None:
+    """DataError naming the CSV line when a row's file lies outside images_dir once '..' and links
+    are resolved (an absolute path, '../', a link to elsewhere: nothing outside the folder is opened),
+    or when two rows name the same file (one image, two sun positions)."""
+    csv_path, folder = Path(csv_path), Path(images_dir).resolve()
+    seen: dict[Path, int] = {}
+    for line, _, name in _ids(csv_path, read_table(csv_path)[1]):
+        path = (folder / name).resolve()
+        if not path.is_relative_to(folder):
+            raise DataError(f"{csv_path} line {line}: {FILE} {name!r} is {path}, outside images_dir {folder}; "
+                            "every image must lie inside images_dir (after resolving '..' and links)")
+        if path in seen:
+            raise DataError(f"{csv_path} lines {seen[path]} and {line} both name the image {path}; each image is "
+                            "one measurement at one sun position: remove one of the lines")
+        seen[path] = line
+
+
 def image_ids(csv_path: str | os.PathLike) -> list[str]:
     """The image ids of a CSV, in its order (what holdout and leave-one-out name)."""
     return [mid for _, mid, _ in _ids(Path(csv_path), read_table(csv_path)[1])]
@@ -245,6 +262,7 @@ def read_rows(csv_path: str | os.PathLike, images_dir: str | os.PathLike,
     if not angles and TIMESTAMP not in columns:
         raise DataError(f"{csv_path}: no sun position: expected the columns {AZIMUTH} and {ELEVATION}, or "
                         f"{TIMESTAMP} (columns found: {', '.join(columns)})")
+    check_files(csv_path, images_dir)
     ids = _ids(csv_path, table)
     rows = [row for _, row in table]
     if angles:

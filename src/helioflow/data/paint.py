@@ -225,11 +225,18 @@ def read_flux_png(path: Path) -> np.ndarray:
                                           "or repair the image")[0]
 
 
+PNG_COLOUR_TYPES = {0: "grey", 2: "RGB", 3: "palette", 4: "grey + alpha", 6: "RGBA"}  # the IHDR's colour type
+
+
 def read_grey_png(path: Path, where: str, remedy: str) -> tuple[np.ndarray, float]:
-    """(H, W) float64 grey levels in [0, 1] of an existing PNG (16-bit / 65535, else converted to 8-bit
-    grey / 255) and the share of its pixels at full scale. One DataError starting with `where` (the
-    file, or the CSV line that names it) when it is no readable 2-D PNG or shows nothing; `remedy`
-    ends the message of an image without a spot."""
+    """(H, W) float64 grey levels in [0, 1] of an existing PNG and the share of its pixels at full scale.
+
+    16-bit grey: / 65535. 8-bit grey, RGB or palette: converted to 8-bit grey by Pillow's ITU-R 601-2
+    luma (L = 0.299 R + 0.587 G + 0.114 B), / 255. An alpha channel (or a transparent colour) that is
+    opaque everywhere is ignored; one with transparent pixels is refused (what a transparent pixel
+    measured is unknown), and so is 16-bit colour (Pillow reads it at 8 bits only). One DataError
+    starting with `where` (the file, or the CSV line that names it) when it is no readable 2-D PNG of
+    these kinds or shows nothing; `remedy` ends the message of an image without a spot."""
     from PIL import Image, UnidentifiedImageError  # Pillow: a dependency of matplotlib and scikit-image
 
     at = where if where == str(path) else f"{where}: {path}"
@@ -238,6 +245,7 @@ def read_grey_png(path: Path, where: str, remedy: str) -> tuple[np.ndarray, floa
             img.load()
             if img.format != "PNG":
                 raise DataError(f"{at} is a {img.format} image; expected PNG")
+            _check_png_kind(path, img, at)
             sixteen = img.mode.startswith("I")
             array = np.asarray(img if sixteen else img.convert("L"), dtype=np.float64)
     except (OSError, SyntaxError, ValueError, UnidentifiedImageError) as exc:
@@ -249,6 +257,20 @@ def read_grey_png(path: Path, where: str, remedy: str) -> tuple[np.ndarray, floa
         level = "black (all zero)" if array.max() == 0 else f"grey level {array.max():g} in every pixel (saturated?)"
         raise DataError(f"{at}: the image is {level}: it shows no focal spot; {remedy}")
     return array / full, float((array >= full).mean())
+
+
+def _check_png_kind(path: Path, img, at: str) -> None:
+    """DataError for a 16-bit colour PNG or one with transparent pixels (read_grey_png)."""
+    header = path.read_bytes()[:26]
+    depth, colour = (header[24], header[25]) if header[12:16] == b"IHDR" else (8, 0)
+    if depth == 16 and colour != 0:
+        raise DataError(f"{at} is a 16-bit {PNG_COLOUR_TYPES.get(colour, 'colour')} PNG, which helioflow cannot read "
+                        "at 16 bits (Pillow reduces it to 8); save it as 16-bit greyscale")
+    if img.mode in ("LA", "RGBA", "PA") or "transparency" in img.info:
+        alpha = np.asarray(img.convert("RGBA"))[..., 3]
+        if alpha.min() < 255:
+            raise DataError(f"{at} has transparent pixels ({(alpha < 255).mean():.1%} of them; alpha channel): "
+                            "helioflow reads the grey level, not the alpha; save the image without transparency")
 
 
 def resample_area(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
