@@ -13,14 +13,26 @@ import logging
 import os
 import sys
 from collections import Counter
+from pathlib import Path
 
 from helioflow import workflow
 from helioflow.errors import HelioflowError
 
 
+def read_spec(text: str):
+    """A rule's parameters: JSON text, or '@path' for a JSON file (what a rule whose parameters grow
+    with the field passes: no command-line length limit)."""
+    if not text.startswith("@"):
+        return json.loads(text)
+    try:
+        return json.loads(Path(text[1:]).read_text())
+    except OSError as exc:
+        raise HelioflowError(f"{text[1:]}: cannot read the rule's parameters: {exc.strerror}") from None
+
+
 def _spec(args, params) -> dict:
     if args.spec is not None:
-        return json.loads(args.spec)
+        return read_spec(args.spec)
     if args.config is None or args.name is None:
         raise HelioflowError("give --spec JSON, or --config FILE and --name NAME")
     from helioflow.config import load_config
@@ -139,7 +151,7 @@ def cmd_diagnose(args) -> None:
 def cmd_evaluate(args) -> None:
     from helioflow.scoring.evaluation import evaluate_model
 
-    spec = json.loads(args.spec) if args.spec else {}
+    spec = read_spec(args.spec) if args.spec else {}
     result = evaluate_model(args.model, args.dataset, args.metrics, args.per_image, args.grid, args.psnr,
                             gan_samples=spec.get("gan_samples", 64), device=spec.get("device", "cpu"))
     for split, m in result["splits"].items():
@@ -151,7 +163,8 @@ def cmd_compose_field(args) -> None:
     from helioflow.field.compose import compose_field
 
     if args.spec is not None:
-        spec, inputs = json.loads(args.spec), {}
+        spec = read_spec(args.spec)
+        inputs = {k: spec.pop(k) for k in ("models", "datasets") if k in spec}
     elif args.config is not None:
         config = workflow.expand_config(load_config(args.config))
         if not config.get("field"):
@@ -203,8 +216,8 @@ def _with_spec(p: argparse.ArgumentParser) -> None:
     or the rule's JSON spec (what the Snakefile passes)."""
     p.add_argument("--config", help="a config.yaml to take the parameters from")
     p.add_argument("--name", help="the heliostat / dataset / model name in that config")
-    p.add_argument("--spec", help="instead of --config and --name: the rule's parameters as JSON (what the "
-                                  "Snakefile passes)")
+    p.add_argument("--spec", help="instead of --config and --name: the rule's parameters as JSON, or @FILE "
+                                  "(what the Snakefile passes)")
 
 
 def parser() -> argparse.ArgumentParser:
@@ -288,7 +301,8 @@ def parser() -> argparse.ArgumentParser:
                    "(default with --config: under results/<experiment>/)")
     p.add_argument("--datasets", nargs="*",
                    help="datasets/<heliostat>.h5 of the measured heliostats, in the same order")
-    p.add_argument("--spec", help="instead of --config: the rule's parameters as JSON (what the Snakefile passes)")
+    p.add_argument("--spec", help="instead of --config: the rule's parameters as JSON, or @FILE of them with the "
+                                  "lists models and datasets (what the Snakefile passes: field/spec.json)")
     p.set_defaults(func=cmd_compose_field)
 
     p = sub.add_parser("table", help="Table 1 from metrics files")
