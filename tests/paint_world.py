@@ -133,9 +133,14 @@ class Scene:
         props = json.loads((PAINT / HELIOSTAT / "heliostat-properties.json").read_text())
         self.position = tower.enu(props["heliostat_position"])
         facets = props["facet_properties"]["facets"]
-        # facet vectors in the heliostat frame (right, up, normal); PAINT's (e, n, u) are exactly these
+        # facet vectors in the heliostat frame (right, up, normal); PAINT's (e, n, u) are exactly these,
+        # relative to the concentrator's origin, which sits at the concentrator translation from the pivot
+        # (given at rest in (e, n, u); the mirror faces -n there: (right, up, normal) = (e, u, -n)), as in
+        # ARTIST's rigid-body kinematics
         self.centre = np.array([f["translation_vector"] for f in facets], float)
-        self.centre[:, 2] = 0.0  # the mirror on the pivot: the ideal heliostat aims the pivot (data/paint.py)
+        kin = props["kinematics_properties"]
+        self.concentrator = np.array([kin["concentrator_translation_e"], kin["concentrator_translation_u"],
+                                      -kin["concentrator_translation_n"]], float)
         self.half_e = np.array([f["canting_e"] for f in facets], float)
         self.half_n = np.array([f["canting_n"] for f in facets], float)
         normal = np.cross(self.half_e, self.half_n)
@@ -151,9 +156,19 @@ class Scene:
 
     def mirror_rotation(self, sun: np.ndarray, tracking_mrad: tuple[float, float]) -> np.ndarray:
         """(3, 3) heliostat frame (right, up, normal) -> ENU: the joints set so that the mirror
-        normal bisects the sun and the aim point, then offset by the tracking errors."""
-        to_aim = self.target.center - self.position
-        n = sun + to_aim / np.linalg.norm(to_aim)
+        normal bisects the sun and the direction from the concentrator's origin to the aim point
+        (the tower file's `center`; the origin turns with the mirror: fixed-point iterations, as
+        ARTIST's), then offset by the tracking errors."""
+        frame = np.eye(3)
+        for _ in range(6):
+            to_aim = self.target.aim - (self.position + frame @ self.concentrator)
+            frame = self._joints(sun, to_aim / np.linalg.norm(to_aim), (0.0, 0.0))
+        return self._joints(sun, to_aim / np.linalg.norm(to_aim), tracking_mrad)
+
+    def _joints(self, sun: np.ndarray, to_aim: np.ndarray, tracking_mrad: tuple[float, float]) -> np.ndarray:
+        """(3, 3) heliostat frame -> ENU for the normal bisecting `sun` and `to_aim`, the joint angles
+        offset by `tracking_mrad`."""
+        n = sun + to_aim
         n /= np.linalg.norm(n)
         east, up = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
         rest = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # columns: east, up, south
@@ -196,7 +211,7 @@ def trace_image(scene: Scene, world: World, azimuth_deg: float, elevation_deg: f
         tilt = rng.normal(0.0, world.slope_mrad * 1e-3, (rays, 2))
         normal = normal + tilt[:, :1] * e_axis[facet] + tilt[:, 1:] * n_axis[facet]
         normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
-    points = points @ frame.T + scene.position
+    points = (points + scene.concentrator) @ frame.T + scene.position
     normal = normal @ frame.T
     a, b = perpendicular_axes(sun)
     dev = sun_deviations(world.sun, rays, rng)

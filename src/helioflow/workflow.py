@@ -619,6 +619,15 @@ def expand_field(config: dict) -> dict:
     return config
 
 
+def write_field_spec(spec: dict, path: str, log_path: str) -> None:
+    """Rule field_spec: compose_field's parameters and inputs (compose_field_params, compose_field_inputs)
+    as JSON at `path`, and a line on how many heliostats it holds at `log_path`."""
+    from helioflow.io import write_text_atomic
+
+    write_text_atomic(path, json.dumps(spec))
+    write_text_atomic(log_path, f"{path}: {len(spec['heliostats']['names'])} heliostats\n")
+
+
 def network_datasets(config: dict) -> list[str]:
     """The datasets every network is trained and scored on, and diagnosed: all but the field's
     calibration datasets, which train only field.network (see compose_field_inputs)."""

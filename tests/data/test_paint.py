@@ -94,7 +94,8 @@ def test_aa39_heliostat_is_four_canted_facets_without_errors(aa39):
     assert h.mount == "juelich" and h.n_facets == 4 and h.facet_focal_length is None
     assert np.allclose(h.facet_size.numpy(), [1.605, 1.275], atol=1e-3)
     assert np.allclose(h.facet_translation[:, :2].abs().numpy(), [0.8075, 0.6425])
-    assert np.allclose(h.facet_translation[:, 2].numpy(), 0.0)  # concentrator centred on the pivot
+    # the facets 0.0402 m ahead of the aimed point, their translation vectors' normal component (as ARTIST)
+    assert np.allclose(h.facet_translation[:, 2].numpy(), 0.0402)
     # each facet normal tilts towards the heliostat centre (concave, focusing)
     tilt = h.facet_normal[:, :2] / h.facet_normal[:, 2:]
     assert (torch.sign(tilt) == -torch.sign(h.facet_translation[:, :2])).all()

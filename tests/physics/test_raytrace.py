@@ -338,3 +338,17 @@ def test_fixed_seed_gives_identical_images_and_another_seed_different_ones():
     assert (a - c).abs().max() > 0.01 * a.max()
     r1, r2 = (reference_trace(h, tg, *NEAR_NORMAL, optics, 20_000, seed=s) for s in (4, 4))
     assert np.array_equal(r1, r2)
+
+
+def test_many_rays_on_few_points_are_traced_in_runs_that_bound_memory_with_the_same_image():
+    """rays per point beyond chunk_rays (a 10^9-ray config on a coarse grid) are drawn in runs of at
+    most chunk_rays: the same draws, so the same image as a point's rays at once (2 suns x 2500 rays
+    per point), up to summation order."""
+    h = _deformed_heliostat()
+    tg = _target(50.0, 3.0, 32)
+    optics = Optics(SunShape("buie", csr=0.1), slope_error=1e-3)
+    az, el = torch.tensor([0.0, 0.1], dtype=DT), torch.tensor([0.6, 0.7], dtype=DT)
+    whole, runs = (trace(h, tg, az, el, optics, rays=40_000, cells_per_side=2, seed=3, chunk_rays=chunk)
+                   for chunk in (5000, 1000))
+    assert torch.allclose(whole, runs, rtol=1e-9, atol=1e-12 * float(whole.max()))
+    assert whole.sum() > 0

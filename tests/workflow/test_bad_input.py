@@ -25,7 +25,13 @@ from helioflow.diagnosis.diagnose import update_ledger
 from helioflow.errors import HelioflowError
 from helioflow.io import save_torch_atomic, write_text_atomic
 from helioflow.models.registry import load_model
-from helioflow.workflow import check_readable, check_results_dir, existing_upstream_files, expand_config, trace_params
+from helioflow.workflow import (
+    check_readable,
+    check_results_dir,
+    existing_upstream_files,
+    expand_config,
+    trace_params,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = yaml.safe_load((Path(__file__).parent / "tiny_config.yaml").read_text())

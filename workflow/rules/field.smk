@@ -1,8 +1,7 @@
 # The field (config `field`): the measured heliostats and their calibration datasets and models are
 # generated config entries (helioflow.workflow.expand_field, applied in common.smk), built by the
 # surfaces, trace and train rules; compose_field composes the receiver flux maps.
-from helioflow.io import write_text_atomic
-from helioflow.workflow import compose_field_inputs, compose_field_params
+from helioflow.workflow import compose_field_inputs, compose_field_params, write_field_spec
 
 
 localrules:
@@ -16,8 +15,10 @@ rule field_spec:
         f"{RESULTS}/field/spec.json",
     params:
         spec=lambda wc: {**compose_field_params(config), **compose_field_inputs(config)},
+    log:
+        f"{RESULTS}/logs/field_spec/field_spec.log",
     run:
-        write_text_atomic(output[0], json.dumps(params.spec))
+        write_field_spec(params.spec, output[0], log[0])
 
 
 rule compose_field:

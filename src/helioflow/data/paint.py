@@ -16,7 +16,12 @@ Conventions (checked against the data; see tests/data/test_paint.py):
   edges (``upper_left`` -> ``upper_right``, east to west as seen from the field), up = mean of the
   side edges, normal = right x up (towards the field), width/height = their lengths (m).
   helioflow's target axes are horizontal (``geometry.plane_axes``); the corners' in-plane tilt
-  (< 5 mrad, < 2 cm at the edges, below one pixel) is neglected.
+  (< 5 mrad, < 2 cm at the edges, below one pixel) is neglected. The image spans the corners, so
+  its frame is this plane's. The heliostats aim at the target's ``center`` entry, as ARTIST (PAINT's
+  reference code) aims them: on the Jülich upper and lower targets it is 9.5 mm right of and 1.4 mm
+  above the corners' mean (attribute ``aim_point_m``, per image in extras ``aim_point_m``). PAINT's
+  own UTIS centroids put the image frame on the corners, not on ``center``: framed on the corners'
+  mean, the images' centroids lie 9 mm nearer the UTIS centroids on those targets (docs/data.md).
 - Images: ``<id>-flux.png`` spans the whole target (the UTIS rectified image): row 0 is the upper
   edge, column 0 the ``upper_left``/``lower_left`` side, i.e. rows top-down and columns to the
   right as seen from the field, as helioflow's images. Its flux-weighted centroid matches PAINT's
@@ -36,12 +41,18 @@ Conventions (checked against the data; see tests/data/test_paint.py):
   conversion: ``canting_e`` and ``canting_n`` are the facet's half-width and half-height vectors
   in that frame, facet size = 2 |canting_e|, 2 |canting_n|, facet normal = canting_e x canting_n.
   The mount is "juelich" (first joint about east), the facets flat, the surface undeformed and
-  the tracking error zero (the ideal heliostat). The concentrator translation (ARTIST applies it
-  after both joints, in the frame where the mirror faces -n) and the facets' common normal offset
-  put the mirror 0.135 m behind the pivot; helioflow's kinematics aims the pivot, so that common
-  offset along the normal is dropped (recorded in the file's ``source.dropped_normal_offset_m``):
-  the ideal heliostat reflects the sun onto the aim point. Joint translations (all 0 in PAINT)
-  and the actuator parameters are kinematic details the ideal heliostat does not use.
+  the tracking error zero (the ideal heliostat). Where the facets sit, as ARTIST (PAINT's
+  reference code) reads it: its kinematics applies the concentrator translation after both
+  joints (0.175 m behind the pivot for AA39) and aims that point, the concentrator's origin, at
+  the aim point; the facets stand at their ``translation_vector`` from it, 0.0402 m ahead of it
+  along the normal for AA39. helioflow aims its heliostat position, so the facets keep their
+  translation vectors relative to it (the aimed point) and the concentrator translation is only
+  recorded (``source.concentrator_translation_enu_m``). The spot then misses the aim point by
+  what the facets' 4 cm stand-off makes of the incidence angle (0.3-2.4 cm at 52 m), as
+  ARTIST's does; the aimed point's own 0.175 m from the pivot moves no spot (both codes aim it
+  exactly). Checked against ARTIST's centroids: tests/data/test_paint_geometry.py. Joint
+  translations (all 0 in PAINT) and the actuator parameters are kinematic details the ideal
+  heliostat does not use.
 - Splits: every image is "train" except the configured ``holdout`` ids (or a seeded random
   share: ``holdout: {fraction: 0.25, seed: 0}``), which are
   "interpolation" when their sun position lies inside the azimuth and elevation ranges of the
@@ -59,7 +70,7 @@ import json
 import logging
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -85,13 +96,15 @@ CONTROL_POINTS = 6  # B-spline control points per facet side of the (zero) surfa
 @dataclass(frozen=True)
 class PlaneTarget:
     """A planar calibration target in ENU: centre (3,) m, unit normal (3,) towards the field,
-    width and height (m) along its right and up axes."""
+    width and height (m) along its right and up axes, and the point (3,) m the heliostats aim at
+    when it is not the centre (None)."""
 
     name: str
     center: np.ndarray
     normal: np.ndarray
     width: float
     height: float
+    aim: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -174,7 +187,9 @@ class Tower:
         corners = {c: self.enu(field(self.data, self.path, f"{name}.coordinates.{c}", "vec3"))
                    for c in CORNERS}
         normal_hint = np.asarray(field(self.data, self.path, f"{name}.normal_vector", "vec3"), dtype=float)
-        return plane_from_corners(name, corners, normal_hint)
+        plane = plane_from_corners(name, corners, normal_hint)
+        aim = self.enu(field(self.data, self.path, f"{name}.coordinates.center", "vec3"))
+        return replace(plane, aim=aim)
 
 
 def plane_from_corners(name: str, corners: dict[str, np.ndarray], normal_hint: np.ndarray) -> PlaneTarget:
@@ -319,10 +334,9 @@ def read_heliostat_properties(path: Path, tower: Tower) -> tuple[Heliostat, dict
                                    for key in ("translation_vector", "canting_e", "canting_n"))
     kin = field(data, path, "kinematics_properties", "object")
     concentrator = np.array([float(field(kin, path, f"concentrator_translation_{a}")) for a in "enu"])
-    # (e, n, u) of the kinematic frame at rest -> heliostat frame (right, up, normal) = (e, u, -n)
-    translation = translation + np.array([concentrator[0], concentrator[2], -concentrator[1]])
-    normal_offset = float(translation[:, 2].mean())
-    translation[:, 2] -= normal_offset
+    # the facets stand where PAINT puts them relative to the concentrator's origin, the point the
+    # kinematics aims (ARTIST's rigid body); helioflow aims its heliostat position, which therefore
+    # stands for that origin: the concentrator translation (e, n, u at rest) is recorded, not applied
     normal = np.cross(half_e, half_n)
     length = np.linalg.norm(normal, axis=-1, keepdims=True)
     if not (length > 0).all():
@@ -340,7 +354,8 @@ def read_heliostat_properties(path: Path, tower: Tower) -> tuple[Heliostat, dict
         canting_error=torch.zeros(n, 2, dtype=f64),
         tracking_error=torch.zeros(len(TRACKING_PARAMETERS), dtype=f64),
     )
-    source = {"source": "PAINT", "heliostat_properties": str(path), "dropped_normal_offset_m": normal_offset,
+    source = {"source": "PAINT", "heliostat_properties": str(path),
+              "concentrator_translation_enu_m": concentrator.tolist(),
               "canting_type": data.get("facet_properties", {}).get("canting_type"),
               "renovation": data.get("renovation")}
     return heliostat, source
@@ -503,6 +518,7 @@ def relative_flux_attrs(geometry: Heliostat, target: PlaneTarget, dni_w_m2: floa
         "target_center_m": np.asarray(target.center).tolist(),
         "target_normal": np.asarray(target.normal).tolist(),
         "target_size_m": [target.width, target.height],
+        **({} if target.aim is None else {"aim_point_m": np.asarray(target.aim).tolist()}),
         "heliostat_position_m": geometry.position.cpu().numpy().tolist(),
         "heliostat_mount": geometry.mount,
         "canting_focal_distance_m": canting_focal_distance(geometry),
@@ -547,6 +563,7 @@ def build_dataset(measurements: list[Measurement], tower: Tower, geometry: Helio
         "target_center_m": np.stack([p.center for p in planes]),
         "target_normal": np.stack([p.normal for p in planes]),
         "target_size_m": np.array([[p.width, p.height] for p in planes]),
+        "aim_point_m": np.stack([p.center if p.aim is None else p.aim for p in planes]),
         "focal_spot_enu_m": np.stack([m.focal_spot_utis_m for m in measurements]),
         "focal_spot_helios_enu_m": np.stack([m.focal_spot_helios_m for m in measurements]),
         "motor_position": np.array([m.motor_position for m in measurements]),

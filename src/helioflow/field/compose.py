@@ -217,6 +217,7 @@ def load_calibration(
         float(width),
         float(height),
         (rows, cols),
+        t(ds.attrs["aim_point_m"]) if "aim_point_m" in ds.attrs else None,
     )
     train = ds.indices("train")
     train_sun = sun_vector(t(np.radians(ds.azimuth_deg[train])), t(np.radians(ds.elevation_deg[train])))
@@ -274,7 +275,7 @@ def measured_spots(
     name, device = scene.names[k], scene.aims.device
     suns = sun_vector(scene.azimuth, scene.elevation)  # (S, 3)
     position = scene.true[k].position.to(suns)
-    equivalent = torch.stack([equivalent_sun(position, scene.aims[k], s, cal.target.center) for s in suns])
+    equivalent = torch.stack([equivalent_sun(position, scene.aims[k], s, cal.target.aim_point) for s in suns])
     az, el = azimuth_elevation(equivalent)
     for p, e in zip(scene.points, el.tolist()):
         if e <= 0:
@@ -302,7 +303,7 @@ def measured_spots(
             cells_per_side=cal.trace.get("cells_per_side", 32),
             seed=spec["seed"],
         )
-    d_r, d_c = (scene.aims[k] - position).norm(), (cal.target.center - position).norm()
+    d_r, d_c = (scene.aims[k] - position).norm(), (cal.target.aim_point - position).norm()
     model_factor = _factors(ideal, k, optics["model"], optics["model"], d_r, d_c)
     truth_factor = _factors(truth, k, optics["world"], calibration.optics, d_r, d_c)
     normals = torch.stack([commanded_normal(position, scene.aims[k], s) for s in suns])

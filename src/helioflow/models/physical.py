@@ -42,7 +42,10 @@ class PhysicsConfig:
         effects: the model's effect list ({effect: {parameter: value or "fit"}}), from config
             `model.effects` (with the dataset's `model_effects` overrides).
         heliostat_path: the heliostat file whose design (ideal) geometry is traced.
-        aim_point_m, target_normal, target_size_m: the target (m), from the dataset's attributes.
+        aim_point_m, target_normal, target_size_m: the target (m), from the dataset's attributes
+            (aim_point_m: the target's centre, target_center_m).
+        target_aim_m: the point the heliostat aims at when it is not the target's centre (PAINT:
+            the tower file's `center` entry), from the dataset's attribute aim_point_m; None = the centre.
         dni_w_m2: direct normal irradiance (W/m^2), from the dataset's attributes.
         fit_steps: traces with gradient (L-BFGS evaluations) per fitting round for heliostat tensors.
         rounds: alternations of spread-scalar search and tensor descent.
@@ -72,6 +75,7 @@ class PhysicsConfig:
     aim_point_m: tuple[float, float, float] = (0.0, 0.0, 20.0)
     target_normal: tuple[float, float, float] = (0.0, 1.0, 0.0)
     target_size_m: tuple[float, float] = (2.0, 2.0)
+    target_aim_m: tuple[float, float, float] | None = None
     dni_w_m2: float = 1000.0
     fit_steps: int = 150
     rounds: int = 2
@@ -139,7 +143,8 @@ class RaytraceModel(SpotModel):
         """What the model traces (see physics.scene.dataset_scene)."""
         c = self.config
         attrs = {"target_center_m": c.aim_point_m, "target_normal": c.target_normal, "target_size_m": c.target_size_m,
-                 "dni_w_m2": c.dni_w_m2, "trace": c.dataset_trace}
+                 "dni_w_m2": c.dni_w_m2, "trace": c.dataset_trace,
+                 **({} if c.target_aim_m is None else {"aim_point_m": c.target_aim_m})}
         return dataset_scene(self.heliostat, attrs, self.image_shape, c.cells_per_side, c.fit_rays, fitting)
 
     def prepare(self, data: TrainingData, checkpoint_path: str | os.PathLike | None = None) -> None:

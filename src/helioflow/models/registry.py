@@ -84,6 +84,7 @@ def training_data(ds: CalibrationDataset, dataset_path, limit: int | None = None
 
 # config fields a network may take from the dataset's attributes when its settings leave them unset
 GEOMETRY_ATTRIBUTES = {"heliostat_position_m": "heliostat_position_m", "aim_point_m": "target_center_m",
+                       "target_aim_m": "aim_point_m",
                        "target_normal": "target_normal", "mount": "heliostat_mount",
                        "canting_focal_distance_m": "canting_focal_distance_m", "target_size_m": "target_size_m",
                        "dni_w_m2": "dni_w_m2", "dataset_trace": "trace",

@@ -117,7 +117,8 @@ def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: 
     at = {k: v.detach().to("cpu", torch.float64) for k, v in at.items()}
     base = {"tracking": h.tracking_error * 1e3, "canting": h.canting_error * 1e3, "surface": h.control_heights * 1e3}
     base.update(at)
-    t64 = replace(target, center=target.center.to("cpu", torch.float64), normal=target.normal.to("cpu", torch.float64))
+    t64 = replace(target, center=target.center.to("cpu", torch.float64), normal=target.normal.to("cpu", torch.float64),
+                  aim=target.aim_point.to("cpu", torch.float64))
     canvas = padded_canvas(t64)
     sun = sun_vector(azimuth.to("cpu", torch.float64), elevation.to("cpu", torch.float64))
     n_facets, g = h.n_facets, cells_per_side
@@ -136,7 +137,7 @@ def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: 
                 samples = replace(samples, points=samples.points + step * 1e-3 * axes[:, :, 2])
             else:
                 samples = replace(samples, normals=normalize(samples.normals - step * 1e-3 * axes[:, :, local - 1]))
-        rays = _project(moved, samples, sun, t64, t64.center, Optics(sun=None, dni=1.0))
+        rays = _project(moved, samples, sun, t64, t64.aim_point, Optics(sun=None, dni=1.0))
         col, row, power, unit, path = central_hits(rays, canvas)
         shape = (len(sun), n_facets, -1)
         return torch.stack((col, row), -1).reshape(*shape, 2), power.reshape(shape), unit, path

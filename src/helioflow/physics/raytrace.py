@@ -109,7 +109,7 @@ def trace(
         cells_per_side: each facet is sampled on a grid of this many cells per side.
         seed: seed of the random pool; the same seed gives identical images.
         chunk_rays: rays (or kernel evaluations) held in memory at once.
-        aim_point: (3,) ENU aim point; default the target centre.
+        aim_point: (3,) ENU aim point; default the target's (Target.aim_point).
         with_launched: also return the (S,) power (W) reflected towards the target plane: the
             cells' power whose central ray meets the plane, wherever on it. The image holds what
             lands inside it; the rest is lost beside it.
@@ -122,7 +122,7 @@ def trace(
         raise ValueError(f"splat must be one of {SPLATS}, got {splat!r}")
     heliostats = [heliostats] if isinstance(heliostats, Heliostat) else list(heliostats)
     dtype, device = heliostats[0].facet_size.dtype, heliostats[0].facet_size.device
-    aim = target.center.to(dtype=dtype, device=device) if aim_point is None else aim_point
+    aim = target.aim_point.to(dtype=dtype, device=device) if aim_point is None else aim_point
     rows, cols = target.resolution
     sun = sun_vector(azimuth.to(dtype=dtype, device=device), elevation.to(dtype=dtype, device=device))
     generator = torch.Generator(device="cpu").manual_seed(seed)
@@ -214,22 +214,26 @@ def _splat_bilinear(
     active = [0, 1] * (optics.sun.kind != "point") + [2, 3] * (optics.slope_error > 0) + [4, 5]
     direction, position = _randomly_turned(*_pixel_coefficients(c, target), generator)
     image = torch.zeros(n_sun, *target.resolution, dtype=dtype, device=device)
-    k = torch.arange(per_point, device=device)
-    points_per_chunk = max(1, chunk_rays // (per_point * n_sun))
+    # (S, points, draws) rays at once, at most about chunk_rays: whole points' draws when they fit,
+    # else one point at a time in runs of draws (many rays on few points)
+    per_run = max(1, min(per_point, chunk_rays // n_sun))
+    points_per_chunk = max(1, chunk_rays // (per_run * n_sun))
     for p0 in range(0, n_points, points_per_chunk):
         sl = slice(p0, p0 + points_per_chunk)
         n_chunk = c.power[:, sl].shape[1]
         start = torch.randint(0, pool_size, (n_sun, n_chunk, 1), generator=generator).to(device)
-        idx = (start + k).bitwise_and_(pool_size - 1)  # (S, Pc, K)
-        draws = {i: torch.take(pool[i], idx) for i in active}
-        axis = [_affine(direction[m], draws, sl, (0, 1, 2, 3)) for m in range(3)]
-        pos = [_affine(position[m], draws, sl, (4, 5)) for m in range(3)]
-        t = pos[0] / axis[0]
-        power = torch.where((t > 0) & (axis[0] < 0), c.power[:, sl, None] / per_point, 0.0)
-        col = torch.addcmul(pos[1], t, axis[1])
-        row = torch.addcmul(pos[2], t, axis[2])
-        image = image + deposit(col.reshape(n_sun, -1), row.reshape(n_sun, -1), power.reshape(n_sun, -1),
-                                target.resolution)
+        for k0 in range(0, per_point, per_run):
+            k = torch.arange(k0, min(k0 + per_run, per_point), device=device)
+            idx = (start + k).bitwise_and_(pool_size - 1)  # (S, Pc, K)
+            draws = {i: torch.take(pool[i], idx) for i in active}
+            axis = [_affine(direction[m], draws, sl, (0, 1, 2, 3)) for m in range(3)]
+            pos = [_affine(position[m], draws, sl, (4, 5)) for m in range(3)]
+            t = pos[0] / axis[0]
+            power = torch.where((t > 0) & (axis[0] < 0), c.power[:, sl, None] / per_point, 0.0)
+            col = torch.addcmul(pos[1], t, axis[1])
+            row = torch.addcmul(pos[2], t, axis[2])
+            image = image + deposit(col.reshape(n_sun, -1), row.reshape(n_sun, -1), power.reshape(n_sun, -1),
+                                    target.resolution)
     return image
 
 

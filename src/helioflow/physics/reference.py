@@ -80,7 +80,7 @@ def reference_trace(
         optics: raytrace.Optics (sun shape, slope error, dni, reflectivity, transmittance).
         n_rays: number of rays.
         seed: seeds both the numpy generator and the torch generator of the sun deviations.
-        aim_point: (3,) ENU aim point; default the target centre.
+        aim_point: (3,) ENU aim point; default the target's (Target.aim_point).
 
     Returns:
         (H, W) float64 array, tent-averaged flux per pixel, rows top-first.
@@ -91,7 +91,7 @@ def reference_trace(
     # Sun, kinematics (independent ENU formula for the sun: east, north, up).
     ce = math.cos(elevation_rad)
     sun = np.array([ce * math.sin(azimuth_rad), -ce * math.cos(azimuth_rad), math.sin(elevation_rad)])
-    aim = target.center if aim_point is None else torch.as_tensor(aim_point)
+    aim = target.aim_point if aim_point is None else torch.as_tensor(aim_point)
     aim = aim.to(torch.float64)
     helio64 = heliostat.to("cpu", torch.float64)
     rot = _np(orientation(helio64, torch.as_tensor(sun)[None], aim)[0])  # heliostat frame -> ENU

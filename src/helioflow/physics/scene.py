@@ -142,7 +142,7 @@ def zero_mean(tilts: Tensor) -> Tensor:
 def dataset_scene(heliostat: Heliostat, attrs: dict, image_shape: tuple[int, int], cells_per_side: int,
                   fit_rays: int, fitting: bool) -> Scene:
     """The scene of a dataset (its attributes: target_center_m, target_normal, target_size_m,
-    dni_w_m2, trace).
+    dni_w_m2, trace, and aim_point_m where the heliostat aims elsewhere than the target centre).
 
     Fitting a dataset traced with bilinear rays: `fit_rays` bilinear rays per image on
     `cells_per_side` cells (faster than kernels for many facets). Otherwise, and for predictions,
@@ -152,9 +152,11 @@ def dataset_scene(heliostat: Heliostat, attrs: dict, image_shape: tuple[int, int
     kernel) is traced with bilinear rays instead (Scene.simulate): the dataset's own when predicting.
     """
     device = heliostat.facet_size.device
+    aim = attrs.get("aim_point_m")
     target = Target(torch.tensor(attrs["target_center_m"], dtype=torch.float32, device=device),
                     torch.tensor(attrs["target_normal"], dtype=torch.float32, device=device),
-                    float(attrs["target_size_m"][0]), float(attrs["target_size_m"][1]), tuple(image_shape))
+                    float(attrs["target_size_m"][0]), float(attrs["target_size_m"][1]), tuple(image_shape),
+                    None if aim is None else torch.tensor(aim, dtype=torch.float32, device=device))
     trace_settings = attrs.get("trace") or {}
     dni = float(attrs["dni_w_m2"])
     if fitting and trace_settings.get("splat") == "bilinear":

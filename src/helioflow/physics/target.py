@@ -20,6 +20,8 @@ class Target:
         width, height: extent along the target's right and up axes (m).
         resolution: (rows, columns); rows run down from the top edge, columns to the right
             as seen from the field (see geometry.plane_axes).
+        aim: (3,) ENU point the heliostats aim at (m), when it is not the centre (PAINT: the
+            tower file's `center` entry, off the middle of the target's corners); None = center.
     """
 
     center: Tensor
@@ -27,6 +29,12 @@ class Target:
     width: float
     height: float
     resolution: tuple[int, int] = (64, 64)
+    aim: Tensor | None = None
+
+    @property
+    def aim_point(self) -> Tensor:
+        """(3,) ENU point the heliostats aim at (m): `aim`, or the centre."""
+        return self.center if self.aim is None else self.aim
 
     @staticmethod
     def facing(center, towards, width: float, height: float, resolution=(64, 64), dtype=torch.float32) -> Target:

@@ -64,7 +64,8 @@ def centroid_check(dataset_path: str | os.PathLike, heliostat_path: str | os.Pat
     for i in range(len(ds.images)):
         width, height = (float(x) for x in e["target_size_m"][i])
         target = Target(torch.as_tensor(e["target_center_m"][i]), torch.as_tensor(e["target_normal"][i]),
-                        width, height, tuple(ds.images.shape[1:]))
+                        width, height, tuple(ds.images.shape[1:]),
+                        torch.as_tensor(e["aim_point_m"][i]) if "aim_point_m" in e else None)
         az, el = (torch.tensor([np.radians(a)], dtype=torch.float64)
                   for a in (ds.azimuth_deg[i], ds.elevation_deg[i]))
         with torch.no_grad():
