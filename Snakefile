@@ -16,6 +16,7 @@ include: "workflow/rules/networks.smk"
 include: "workflow/rules/field.smk"
 include: "workflow/rules/diagnose.smk"
 include: "workflow/rules/report.smk"
+include: "workflow/rules/specs.smk"
 
 
 rule all:

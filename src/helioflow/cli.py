@@ -180,17 +180,22 @@ def cmd_compose_field(args) -> None:
     logging.info("wrote %s, %s and %s in %.1f s", args.flux, args.figure, args.metrics, metrics["seconds"])
 
 
+def _metrics(paths: list[str]) -> list[str]:
+    """--metrics: the files, or one @FILE of a spec with the list under "metrics" (workflow.rule_spec)."""
+    return read_spec(paths[0])["metrics"] if len(paths) == 1 and paths[0].startswith("@") else paths
+
+
 def cmd_table(args) -> None:
     from helioflow.scoring.table import build_table
 
-    build_table(args.metrics, args.csv, args.markdown)
+    build_table(_metrics(args.metrics), args.csv, args.markdown)
     logging.info("wrote %s and %s", args.csv, args.markdown)
 
 
 def cmd_data_efficiency(args) -> None:
     from helioflow.scoring.efficiency import plot_data_efficiency
 
-    plot_data_efficiency(args.metrics, args.figure, args.csv)
+    plot_data_efficiency(_metrics(args.metrics), args.figure, args.csv)
     logging.info("wrote %s and %s", args.figure, args.csv)
 
 
@@ -207,7 +212,7 @@ def cmd_leave_one_out(args) -> None:
 def cmd_report(args) -> None:
     from helioflow.report.page import write_report
 
-    write_report(args.output, json.loads(args.inputs), args.benchmarks, args.experiment)
+    write_report(args.output, read_spec(args.inputs), args.benchmarks, args.experiment)
     logging.info("wrote %s", args.output)
 
 
@@ -302,17 +307,18 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--datasets", nargs="*",
                    help="datasets/<heliostat>.h5 of the measured heliostats, in the same order")
     p.add_argument("--spec", help="instead of --config: the rule's parameters as JSON, or @FILE of them with the "
-                                  "lists models and datasets (what the Snakefile passes: field/spec.json)")
+                                  "lists models and datasets (what the Snakefile passes: specs/compose_field.json)")
     p.set_defaults(func=cmd_compose_field)
 
     p = sub.add_parser("table", help="Table 1 from metrics files")
-    p.add_argument("--metrics", nargs="+", required=True)
+    p.add_argument("--metrics", nargs="+", required=True, help="metrics/<dataset>/<model>.json files, or @FILE: "
+                   "a JSON object whose 'metrics' lists them (what the Snakefile passes: specs/table.json)")
     p.add_argument("--csv", required=True)
     p.add_argument("--markdown", required=True)
     p.set_defaults(func=cmd_table)
 
     p = sub.add_parser("data-efficiency", help="PSNR against the number of training images")
-    p.add_argument("--metrics", nargs="+", required=True)
+    p.add_argument("--metrics", nargs="+", required=True, help="metrics files, or @FILE (specs/data_efficiency.json)")
     p.add_argument("--figure", required=True)
     p.add_argument("--csv", required=True)
     p.set_defaults(func=cmd_data_efficiency)
@@ -340,7 +346,8 @@ def parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("report", help="the self-contained HTML report of an experiment")
     p.add_argument("--inputs", required=True,
-                   help="JSON: report section -> list of files (what helioflow.workflow.report_inputs gives)")
+                   help="JSON: report section -> list of files (what helioflow.workflow.report_inputs gives), "
+                        "or @FILE of it (what the Snakefile passes: specs/report.json)")
     p.add_argument("--benchmarks", help="the experiment's benchmarks/ folder (run times)")
     p.add_argument("--experiment", required=True, help="the experiment's name (the title)")
     p.add_argument("--output", required=True, help="report.html")

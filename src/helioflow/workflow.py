@@ -619,13 +619,36 @@ def expand_field(config: dict) -> dict:
     return config
 
 
-def write_field_spec(spec: dict, path: str, log_path: str) -> None:
-    """Rule field_spec: compose_field's parameters and inputs (compose_field_params, compose_field_inputs)
-    as JSON at `path`, and a line on how many heliostats it holds at `log_path`."""
+SPEC_RULES = ("compose_field", "report", "table", "data_efficiency")  # rules whose parameters grow with the plant
+
+
+def rule_spec(config: dict, rule: str) -> dict:
+    """The parameters and input lists of a rule in SPEC_RULES, which grow with the datasets or the
+    field past what one command-line argument may hold (128 KiB): rule `spec` writes them to
+    specs/<rule>.json and the rule reads that file (`--spec @file`, `--inputs @file`, `--metrics @file`)."""
+    if rule == "compose_field":
+        return {**compose_field_params(config), **compose_field_inputs(config)}
+    if rule == "report":
+        return report_inputs(config)
+    if rule == "table":
+        return {"metrics": metrics_paths(config)}
+    if rule == "data_efficiency":
+        return {"metrics": efficiency_metrics(config)}
+    raise ConfigError(f"no spec file for rule {rule!r}; rules with one: {', '.join(SPEC_RULES)}")
+
+
+def spec_path(config: dict, rule: str) -> str:
+    """specs/<rule>.json of a rule in SPEC_RULES."""
+    return f"{results_dir(config)}/specs/{rule}.json"
+
+
+def write_spec(spec: dict, path: str, log_path: str) -> None:
+    """Rule `spec`: a rule's parameters (rule_spec) as JSON at `path`, and its size at `log_path`."""
     from helioflow.io import write_text_atomic
 
-    write_text_atomic(path, json.dumps(spec))
-    write_text_atomic(log_path, f"{path}: {len(spec['heliostats']['names'])} heliostats\n")
+    text = json.dumps(spec)
+    write_text_atomic(path, text)
+    write_text_atomic(log_path, f"{path}: {len(text)} bytes\n")
 
 
 def network_datasets(config: dict) -> list[str]:

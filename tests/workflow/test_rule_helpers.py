@@ -8,14 +8,21 @@ from pathlib import Path
 import pytest
 
 from helioflow.config import load_config
-from helioflow.errors import ConfigError
+from helioflow.errors import ConfigError, HelioflowError
 from helioflow.workflow import (
     all_targets,
+    compose_field_inputs,
+    compose_field_params,
     dataset_heliostat,
+    expand_config,
+    metrics_paths,
     report_inputs,
+    rule_spec,
+    spec_path,
     surfaces_params,
     trace_params,
     world_effects,
+    write_spec,
 )
 
 REPO = Path(__file__).resolve().parents[2]
@@ -135,3 +142,23 @@ def test_all_targets_are_the_report_whose_inputs_are_datasets_and_figures_under_
     assert all_targets(config) == ["results/run-2/report.html"]
     assert [f for files in report_inputs(config).values() for f in files] == [
         "results/run-2/datasets/sanity_check.h5", "results/run-2/figures/datasets/sanity_check.png"]
+
+
+def test_parameters_that_grow_with_the_plant_travel_in_a_spec_file_the_cli_reads(default_config, tmp_path):
+    """rule `spec` writes rule_spec(config, rule) to specs/<rule>.json; the rules pass `@file` instead
+    of the lists, which for a plant exceed what one command-line argument holds (128 KiB)."""
+    from helioflow.cli import _metrics, read_spec
+
+    config = expand_config(default_config)
+    assert rule_spec(config, "report") == report_inputs(config)
+    assert rule_spec(config, "table") == {"metrics": metrics_paths(config)}
+    assert rule_spec(config, "compose_field") == {**compose_field_params(config), **compose_field_inputs(config)}
+    assert spec_path(config, "report") == "results/default/specs/report.json"
+    with pytest.raises(ConfigError, match="no spec file for rule 'train'"):
+        rule_spec(config, "train")
+    path = tmp_path / "table.json"
+    write_spec(rule_spec(config, "table"), str(path), str(tmp_path / "table.log"))
+    assert _metrics([f"@{path}"]) == metrics_paths(config) and _metrics(["a.json", "b.json"]) == ["a.json", "b.json"]
+    assert read_spec(f"@{path}") == {"metrics": metrics_paths(config)}
+    with pytest.raises(HelioflowError, match="missing.json: cannot read the rule's parameters"):
+        read_spec(f"@{tmp_path / 'missing.json'}")

@@ -33,6 +33,7 @@ from helioflow.workflow import (
     paint_heliostat_params,
     paint_heliostats,
     results_dir,
+    spec_path,
     surfaces_params,
     trace_params,
     traced_datasets,

@@ -68,6 +68,7 @@ rule table:
     """Table 1: network x dataset x split (PSNR, SSIM) with controllability."""
     input:
         metrics=metrics_paths(config),
+        spec=spec_path(config, "table"),
     output:
         csv=f"{RESULTS}/tables/table1.csv",
         markdown=f"{RESULTS}/tables/table1.md",
@@ -79,13 +80,14 @@ rule table:
         f"{RESULTS}/benchmarks/table/table1.tsv"
     threads: 1
     shell:
-        "helioflow table --metrics {input.metrics:q} --csv {output.csv:q} --markdown {output.markdown:q} > {log:q} 2>&1"
+        "helioflow table --metrics @{input.spec:q} --csv {output.csv:q} --markdown {output.markdown:q} > {log:q} 2>&1"
 
 
 rule data_efficiency:
     """Interpolation/extrapolation PSNR against the number of training images."""
     input:
         metrics=efficiency_metrics(config),
+        spec=spec_path(config, "data_efficiency"),
     output:
         figure=f"{RESULTS}/figures/data_efficiency.png",
         csv=f"{RESULTS}/tables/data_efficiency.csv",
@@ -97,4 +99,5 @@ rule data_efficiency:
         f"{RESULTS}/benchmarks/data_efficiency/data_efficiency.tsv"
     threads: 1
     shell:
-        "helioflow data-efficiency --metrics {input.metrics:q} --figure {output.figure:q} --csv {output.csv:q} > {log:q} 2>&1"
+        "helioflow data-efficiency --metrics @{input.spec:q} --figure {output.figure:q} --csv {output.csv:q}"
+        " > {log:q} 2>&1"
