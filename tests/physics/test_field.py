@@ -395,3 +395,39 @@ def test_bad_field_inputs_raise_clear_errors():
     receiver = flat_receiver([0.0, 0.0, 20.0], [0.0, 1.0, 0.0], 4.0, 4.0, (16, 16))
     with pytest.raises(ValueError, match="below the horizon"):
         field_flux(field, receiver, *_sun(0.0, -5.0), Optics(SunShape("pillbox")))
+
+
+def _all_pairs_candidates(origin, direction, radius, widening, k):
+    """_candidates' rule applied to every pair (the reference for its k-d tree search)."""
+    rel = origin[None, :, :] - origin[:, None, :]  # (N, N, 3)
+    along = (rel * direction[:, None, :]).sum(-1)
+    perp2 = (rel * rel).sum(-1) - along**2
+    reach = radius[:, None] + radius[None, :]
+    ok = (along > -reach) & (perp2 < (reach + along.clamp_min(0) * widening[:, None]) ** 2)
+    ok.fill_diagonal_(False)
+    values, index = torch.topk(torch.where(ok, along, torch.full_like(along, math.inf)), k, dim=1, largest=False)
+    return index, torch.isfinite(values)
+
+
+@pytest.mark.parametrize("elevation_deg", [2.0, 12.0, 45.0])
+def test_neighbour_candidates_from_the_k_d_tree_are_those_of_every_pair(elevation_deg):
+    """The k-d tree search (_candidates) finds exactly the neighbours the rule finds among all pairs:
+    shading towards a low or high sun, blocking towards a receiver with a widening beam, uneven
+    pivot heights."""
+    from helioflow.physics.field import _candidates
+
+    g = torch.Generator().manual_seed(int(elevation_deg))
+    n = 600
+    origin = torch.cat((torch.rand(n, 2, generator=g, dtype=DT) * 120 - 60,
+                        torch.rand(n, 1, generator=g, dtype=DT) * 3), -1)
+    radius = 1.2 + 0.3 * torch.rand(n, generator=g, dtype=DT)
+    sun = sun_vector(torch.tensor(0.7, dtype=DT), torch.tensor(math.radians(elevation_deg), dtype=DT))
+    aim = torch.tensor([0.0, -80.0, 30.0], dtype=DT)
+    cases = [(sun.expand(n, 3), torch.zeros(n, dtype=DT)),
+             ((aim - origin) / (aim - origin).norm(dim=-1, keepdim=True), 4.0 / (aim - origin).norm(dim=-1))]
+    for direction, widening in cases:
+        index, valid = _candidates(origin, direction, radius, widening, 8)
+        ref_index, ref_valid = _all_pairs_candidates(origin, direction, radius, widening, 8)
+        assert torch.equal(valid, ref_valid)
+        assert torch.equal(torch.where(valid, index, -1), torch.where(ref_valid, ref_index, -1))
+        assert valid.any()

@@ -47,6 +47,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -303,24 +304,45 @@ def _candidates(origin: Tensor, direction: Tensor, radius: Tensor, widening: Ten
         widening: (N,) growth of the bundle's radius per metre along it.
 
     Returns:
-        index (N, k) long and valid (N, k) bool. Pairs are filtered in (2^22 / N, N) row chunks.
+        index (N, k) long and valid (N, k) bool (an invalid entry's index is meaningless).
+
+    The pairs tested are found with a k-d tree, in O(N log N): a qualifying neighbour lies within
+    along_max (1 + widening) + 2 reach_max of the pivot, where along_max = (reach_max + dz) /
+    (direction_z - widening) (dz: the largest difference of pivot heights), because the bundle rises
+    by direction_z per metre along it while the neighbour's pivot can lie at most dz + reach above;
+    rows whose bundle does not rise (direction_z <= widening) test every heliostat.
     """
+    from scipy.spatial import cKDTree
+
     n = len(origin)
-    step = max(1, 2**22 // n)
-    index, valid = [], []
-    for start in range(0, n, step):
-        rows = slice(start, start + step)
-        rel = origin[None, :, :] - origin[rows, None, :]  # (B, N, 3)
+    reach_max = 2 * float(radius.max())
+    dz = float(origin[:, 2].max() - origin[:, 2].min())
+    rise = (direction[:, 2] - widening).double()
+    along_max = (reach_max + dz) / rise.clamp_min(1e-12)
+    ball = torch.where(rise > 1e-6, along_max * (1 + widening.double()) + 2 * reach_max,
+                       torch.full_like(rise, math.inf))
+    points = origin.detach().double().cpu().numpy()
+    near = cKDTree(points).query_ball_point(points, r=np.minimum(ball.cpu().numpy(), 1e300), return_sorted=False)
+    index = torch.zeros(n, k, dtype=torch.long, device=origin.device)
+    valid = torch.zeros(n, k, dtype=torch.bool, device=origin.device)
+    order = sorted(range(n), key=lambda h: len(near[h]))
+    for start in range(0, n, 4096):  # rows of similar candidate counts, padded to the longest
+        rows = torch.tensor(order[start:start + 4096], device=origin.device)
+        width = max(1, max(len(near[h]) for h in order[start:start + 4096]))
+        cand = torch.tensor([near[h] + [h] * (width - len(near[h])) for h in order[start:start + 4096]],
+                            device=origin.device)  # (B, M), padded with the row itself (never qualifies)
+        rel = origin[cand] - origin[rows, None, :]  # (B, M, 3)
         along = (rel * direction[rows, None, :]).sum(-1)
         perp2 = (rel * rel).sum(-1) - along**2
-        reach = radius[rows, None] + radius[None, :]
-        ok = (along > -reach) & (perp2 < (reach + along.clamp_min(0) * widening[rows, None]) ** 2)
-        ok[torch.arange(ok.shape[0]), torch.arange(start, start + ok.shape[0])] = False
+        reach = radius[rows, None] + radius[cand]
+        ok = ((along > -reach) & (perp2 < (reach + along.clamp_min(0) * widening[rows, None]) ** 2)
+              & (cand != rows[:, None]))
         key = torch.where(ok, along, torch.full_like(along, math.inf))
-        values, idx = torch.topk(key, k, dim=1, largest=False)
-        index.append(idx)
-        valid.append(torch.isfinite(values))
-    return torch.cat(index), torch.cat(valid)
+        m = min(k, width)
+        values, idx = torch.topk(key, m, dim=1, largest=False)
+        index[rows, :m] = torch.gather(cand, 1, idx)
+        valid[rows, :m] = torch.isfinite(values)
+    return index, valid
 
 
 def _hits(origin: Tensor, direction: Tensor, rects, index: Tensor, valid: Tensor) -> Tensor:
