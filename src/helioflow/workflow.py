@@ -424,6 +424,8 @@ def field_size(field: dict) -> int:
     layout = field["layout"]
     if layout["kind"] in ("fermat", "radial"):
         return layout["n"]
+    if layout["kind"] == "list":
+        return len(layout["positions"])
     return len(field_positions(field, {}))
 
 
@@ -433,7 +435,8 @@ def field_positions(field: dict, template: dict) -> list[list[float]]:
     layout = field["layout"]
     csv = Path(layout["csv"]) if layout["kind"] == "csv" else None
     stamp = (csv.stat().st_mtime_ns, csv.stat().st_size) if csv is not None and csv.is_file() else None
-    key = json.dumps([layout, mirror_size(template) if template else None, stamp], sort_keys=True)
+    mirror = mirror_size(template) if layout["kind"] in ("fermat", "radial") else None  # list, csv: not used
+    key = json.dumps([layout, mirror, stamp], sort_keys=True)
     return [list(row) for row in _positions_of(key)]
 
 
@@ -543,21 +546,15 @@ def field_datasets(config: dict) -> dict[str, dict]:
             for name in field_measured(config)}
 
 
-def facing(position_m, center_m, normal) -> float:
-    """Distance (m) of a point in front of a plane (centre, normal towards the field): > 0 when a
-    heliostat there can see the plane, <= 0 when it is in the plane or behind it."""
+def facing(position_m, center_m, normal):
+    """Distance (m) of a point (3,), or of points (n, 3), in front of a plane (centre, normal towards
+    the field): > 0 when a heliostat there can see the plane, <= 0 when it is in the plane or behind
+    it. A float for one point, an (n,) array for several."""
     import numpy as np
 
     n = np.asarray(normal, dtype=float)
-    return float(np.dot(np.subtract(position_m, center_m), n / np.linalg.norm(n)))
-
-
-def _behind(xyz, plane: dict):
-    """(n,) bool: which of the (n, 3) points are in a plane ({center_m, normal}) or behind it (facing <= 0)."""
-    import numpy as np
-
-    normal = np.asarray(plane["normal"], dtype=float)
-    return (xyz - np.asarray(plane["center_m"], dtype=float)) @ (normal / np.linalg.norm(normal)) <= 0
+    distance = np.subtract(position_m, center_m) @ (n / np.linalg.norm(n))
+    return float(distance) if np.ndim(distance) == 0 else distance
 
 
 def check_field_geometry(config: dict) -> None:
@@ -577,12 +574,12 @@ def check_field_geometry(config: dict) -> None:
     receiver, target = field["receiver"], config["target"]
     measured = np.zeros(len(xyz), dtype=bool)
     measured[measured_indices(field, len(xyz))] = True
-    behind = np.nonzero(_behind(xyz, receiver))[0]
+    behind = np.nonzero(facing(xyz, receiver["center_m"], receiver["normal"]) <= 0)[0]
     if len(behind):
         i = int(behind[0])
         raise ConfigError(f"field: heliostat {names[i]} at {positions[i]} is behind the receiver (field.receiver."
                           f"center_m {receiver['center_m']}, normal {receiver['normal']}): it cannot reach it")
-    behind = np.nonzero(measured & _behind(xyz, target))[0]
+    behind = np.nonzero(measured & (facing(xyz, target["center_m"], target["normal"]) <= 0))[0]
     if len(behind):
         i = int(behind[0])
         raise ConfigError(f"field: measured heliostat {names[i]} at {positions[i]} is behind the calibration target "

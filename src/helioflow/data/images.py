@@ -160,9 +160,15 @@ def check_files(csv_path: str | os.PathLike, images_dir: str | os.PathLike) -> N
     """DataError naming the CSV line when a row's file lies outside images_dir once '..' and links
     are resolved (an absolute path, '../', a link to elsewhere: nothing outside the folder is opened),
     or when two rows name the same file (one image, two sun positions)."""
-    csv_path, folder = Path(csv_path), Path(images_dir).resolve()
+    csv_path = Path(csv_path)
+    _check_paths(csv_path, images_dir, _ids(csv_path, read_table(csv_path)[1]))
+
+
+def _check_paths(csv_path: Path, images_dir: str | os.PathLike, ids: list[tuple[int, str, str]]) -> None:
+    """check_files on the rows' [(line, id, file)] (_ids)."""
+    folder = Path(images_dir).resolve()
     seen: dict[Path, int] = {}
-    for line, _, name in _ids(csv_path, read_table(csv_path)[1]):
+    for line, _, name in ids:
         path = (folder / name).resolve()
         if not path.is_relative_to(folder):
             raise DataError(f"{csv_path} line {line}: {FILE} {name!r} is {path}, outside images_dir {folder}; "
@@ -262,8 +268,8 @@ def read_rows(csv_path: str | os.PathLike, images_dir: str | os.PathLike,
     if not angles and TIMESTAMP not in columns:
         raise DataError(f"{csv_path}: no sun position: expected the columns {AZIMUTH} and {ELEVATION}, or "
                         f"{TIMESTAMP} (columns found: {', '.join(columns)})")
-    check_files(csv_path, images_dir)
     ids = _ids(csv_path, table)
+    _check_paths(csv_path, images_dir, ids)
     rows = [row for _, row in table]
     if angles:
         az = np.array([_number(csv_path, line, row, AZIMUTH) for (line, _, _), row in zip(ids, rows)])

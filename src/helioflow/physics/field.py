@@ -326,10 +326,14 @@ def _candidates(origin: Tensor, direction: Tensor, radius: Tensor, widening: Ten
     index = torch.zeros(n, k, dtype=torch.long, device=origin.device)
     valid = torch.zeros(n, k, dtype=torch.bool, device=origin.device)
     order = sorted(range(n), key=lambda h: len(near[h]))
-    for start in range(0, n, 4096):  # rows of similar candidate counts, padded to the longest
-        rows = torch.tensor(order[start:start + 4096], device=origin.device)
-        width = max(1, max(len(near[h]) for h in order[start:start + 4096]))
-        cand = torch.tensor([near[h] + [h] * (width - len(near[h])) for h in order[start:start + 4096]],
+    start = 0
+    while start < n:  # rows of similar candidate counts, padded to the longest: at most ~2^22 pairs a chunk
+        step = max(1, min(4096, 2**22 // max(1, len(near[order[min(start + 4095, n - 1)]]))))
+        chunk = order[start:start + step]
+        start += step
+        rows = torch.tensor(chunk, device=origin.device)
+        width = max(1, len(near[chunk[-1]]))
+        cand = torch.tensor([near[h] + [h] * (width - len(near[h])) for h in chunk],
                             device=origin.device)  # (B, M), padded with the row itself (never qualifies)
         rel = origin[cand] - origin[rows, None, :]  # (B, M, 3)
         along = (rel * direction[rows, None, :]).sum(-1)
