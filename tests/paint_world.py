@@ -15,7 +15,16 @@ Effects (`world(...)` keywords), with the magnitudes a real heliostat has:
     canting_mrad=(F, 2) array   facet tilts about each facet's width and height axes
     bump=(facet, height_mm, width_m)  a Gaussian bump on one facet (the local surface error)
     camera=(background, blur_px)      background as a fraction of the peak, blur std in pixels of
-                                      a 64 x 64 image of the target (4x that of the 256 x 256 PNG)
+                                      a 64 x 64 image of the target (4x that of the 256 x 256 PNG),
+                                      applied to each ray's landing point (a photon's point-spread:
+                                      the counting noise stays white, as a sensor's is)
+    focal_length_m=f            curved facets: each a paraboloid of this focal length (the model's
+                                facets are flat)
+    soiling=g                   soiling that grows down the mirror: the reflectance falls linearly from
+                                the mirror's top edge (clean) to g less at its bottom edge
+    neighbour_enu_m=(e, n, u)   a neighbouring heliostat of the same mirror size at this offset from
+                                AA39's pivot, tracking the same aim point: its mirror (one rectangle
+                                over all facets) shades the sun's rays and blocks the reflected ones
 """
 
 from __future__ import annotations
@@ -49,6 +58,9 @@ class World:
     canting_mrad: np.ndarray | None = None
     bump: tuple[int, float, float] | None = None
     camera: tuple[float, float] = (0.0, 0.0)
+    focal_length_m: float | None = None
+    soiling: float = 0.0
+    neighbour_enu_m: tuple[float, float, float] | None = None
     target: str = "solar_tower_juelich_upper"
     truth: dict = field(default_factory=dict)
 
@@ -154,14 +166,16 @@ class Scene:
         up = 0.5 * ((corners["upper_left"] - corners["lower_left"]) + (corners["upper_right"] - corners["lower_right"]))
         self.right, self.up = right / np.linalg.norm(right), up / np.linalg.norm(up)
 
-    def mirror_rotation(self, sun: np.ndarray, tracking_mrad: tuple[float, float]) -> np.ndarray:
+    def mirror_rotation(self, sun: np.ndarray, tracking_mrad: tuple[float, float],
+                        position: np.ndarray | None = None) -> np.ndarray:
         """(3, 3) heliostat frame (right, up, normal) -> ENU: the joints set so that the mirror
         normal bisects the sun and the direction from the concentrator's origin to the aim point
         (the tower file's `center`; the origin turns with the mirror: fixed-point iterations, as
-        ARTIST's), then offset by the tracking errors."""
+        ARTIST's), then offset by the tracking errors. `position`: another heliostat's pivot (ENU)."""
+        position = self.position if position is None else position
         frame = np.eye(3)
         for _ in range(6):
-            to_aim = self.target.aim - (self.position + frame @ self.concentrator)
+            to_aim = self.target.aim - (position + frame @ self.concentrator)
             frame = self._joints(sun, to_aim / np.linalg.norm(to_aim), (0.0, 0.0))
         return self._joints(sun, to_aim / np.linalg.norm(to_aim), tracking_mrad)
 
@@ -207,10 +221,20 @@ def trace_image(scene: Scene, world: World, azimuth_deg: float, elevation_deg: f
         slope = -local / width_m ** 2 * g[:, None]  # dh/dx, dh/dy
         normal = normal - slope[:, :1] * e_axis[facet] - slope[:, 1:] * n_axis[facet]
         normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    if world.focal_length_m is not None:  # z = (x^2 + y^2) / (4 f): slopes x / (2 f), y / (2 f)
+        local = np.stack((u * np.linalg.norm(scene.half_e[facet], axis=-1),
+                          v * np.linalg.norm(scene.half_n[facet], axis=-1)), -1)
+        slope = local / (2 * world.focal_length_m)
+        normal = normal - slope[:, :1] * e_axis[facet] - slope[:, 1:] * n_axis[facet]
+        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
     if world.slope_mrad:
         tilt = rng.normal(0.0, world.slope_mrad * 1e-3, (rays, 2))
         normal = normal + tilt[:, :1] * e_axis[facet] + tilt[:, 1:] * n_axis[facet]
         normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    if world.soiling:
+        top = (scene.centre[:, 1] + np.linalg.norm(scene.half_n, axis=-1)).max()
+        bottom = (scene.centre[:, 1] - np.linalg.norm(scene.half_n, axis=-1)).min()
+        reflectance = 1.0 - world.soiling * (top - points[:, 1]) / (top - bottom)
     points = (points + scene.concentrator) @ frame.T + scene.position
     normal = normal @ frame.T
     a, b = perpendicular_axes(sun)
@@ -223,23 +247,39 @@ def trace_image(scene: Scene, world: World, azimuth_deg: float, elevation_deg: f
     t = ((scene.target.center - points) @ scene.target.normal) / (reflected @ scene.target.normal)
     hit = points + t[:, None] * reflected - scene.target.center
     x, y = hit @ scene.right, hit @ scene.up
+    if world.camera[1] > 0:  # the camera's blur, photon by photon: the counting noise stays white, as a sensor's
+        x = x + rng.normal(0.0, world.camera[1] * scene.target.width / 64, rays)
+        y = y + rng.normal(0.0, world.camera[1] * scene.target.height / 64, rays)
     weight = np.clip(cos_in, 0, None)  # the facet area's projection towards the sun
+    if world.soiling:
+        weight = weight * reflectance
+    if world.neighbour_enu_m is not None:
+        weight = weight * ~neighbour_hits(scene, sun, points, towards_sun, world.neighbour_enu_m)
+        weight = weight * ~neighbour_hits(scene, sun, points, reflected, world.neighbour_enu_m)
     col = (x / scene.target.width + 0.5) * PNG_SIDE
     row = (0.5 - y / scene.target.height) * PNG_SIDE
     image, _, _ = np.histogram2d(row, col, bins=PNG_SIDE, range=[[0, PNG_SIDE], [0, PNG_SIDE]], weights=weight)
     return image
 
 
-def camera(image: np.ndarray, background: float, blur_px64: float) -> np.ndarray:
-    """The camera: Gaussian blur (std in 64-px pixels), a background of this share of the peak."""
-    if blur_px64 > 0:
-        sigma = blur_px64 * PNG_SIDE / 64
-        r = int(4 * sigma) + 1
-        k = np.exp(-np.arange(-r, r + 1) ** 2 / (2 * sigma ** 2))
-        k /= k.sum()
-        padded = np.pad(image, r)
-        image = np.apply_along_axis(lambda m: np.convolve(m, k, "valid"), 0, padded)
-        image = np.apply_along_axis(lambda m: np.convolve(m, k, "valid"), 1, image)
+def neighbour_hits(scene: Scene, sun: np.ndarray, points: np.ndarray, direction: np.ndarray,
+                   offset_enu_m: tuple[float, float, float]) -> np.ndarray:
+    """(R,) whether rays from `points` (R, 3) along `direction` (R, 3) meet the neighbour's mirror:
+    one rectangle spanning all of AA39's facets, at the neighbour's pivot, tracking the same aim."""
+    position = scene.position + np.asarray(offset_enu_m, float)
+    frame = scene.mirror_rotation(sun, (0.0, 0.0), position)
+    centre = position + frame @ scene.concentrator
+    normal = frame[:, 2]
+    half_w = np.abs(scene.centre[:, 0]).max() + np.linalg.norm(scene.half_e, axis=-1).max()
+    half_h = np.abs(scene.centre[:, 1]).max() + np.linalg.norm(scene.half_n, axis=-1).max()
+    along = direction @ normal
+    t = ((centre - points) @ normal) / np.where(np.abs(along) < 1e-12, 1e-12, along)
+    local = (points + t[:, None] * direction - centre) @ frame
+    return (t > 0) & (np.abs(local[:, 0]) <= half_w) & (np.abs(local[:, 1]) <= half_h)
+
+
+def camera(image: np.ndarray, background: float) -> np.ndarray:
+    """The camera's background, a share of the peak (its blur acts on each photon in trace_image)."""
     return image + background * image.max()
 
 
@@ -267,7 +307,7 @@ def write_paint_folder(folder: Path, world: World, n_images: int = 40, rays: int
     rng = np.random.default_rng(seed)
     suns = calibration_suns(n_images, seed)
     for i, (az, el) in enumerate(suns):
-        flux = camera(trace_image(scene, world, az, el, rays, rng), *world.camera)
+        flux = camera(trace_image(scene, world, az, el, rays, rng), world.camera[0])
         png = np.round(flux / flux.max() * 255).astype(np.uint8)
         mid = str(100_000 + i)
         Image.fromarray(png, mode="L").save(folder / HELIOSTAT / f"{mid}-flux.png")

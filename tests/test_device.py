@@ -94,4 +94,4 @@ def test_the_configured_device_reaches_every_rule_that_computes(config, asked, t
                  "--output", str(tmp_path / "d.json"), "--spec", json.dumps(diagnose_params(config, "scan"))]) == 0
     assert asked == ["cuda"]
     assert {p.name for p in tmp_path.glob("d_*")} == {"d_ledger.json", "d_signatures.png", "d_ranking.png",
-                                                      "d_residuals.png", "d_ledger-figure.png"}
+                                                      "d_residuals.png", "d_location.png", "d_ledger-figure.png"}

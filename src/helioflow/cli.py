@@ -134,7 +134,7 @@ def cmd_train(args) -> None:
                   seed=spec["seed"], train_images=spec["train_images"], device=spec.get("device", "cpu"))
 
 
-DIAGNOSIS_FIGURES = ("signatures", "ranking", "residuals", "ledger-figure")
+DIAGNOSIS_FIGURES = ("signatures", "ranking", "residuals", "location", "ledger-figure")
 
 
 def cmd_diagnose(args) -> None:

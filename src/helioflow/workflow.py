@@ -395,7 +395,7 @@ def report_inputs(config: dict) -> dict[str, list[str]]:
         "recovery": recovery_paths(config),
         "diagnosis": diagnosis_paths(config),
         "diagnosis_figures": [f"{r}/figures/diagnosis/{d}_{kind}.png" for d in diagnosed
-                              for kind in ("signatures", "ranking", "residuals", "ledger")],
+                              for kind in ("signatures", "ranking", "residuals", "location", "ledger")],
         "field": [f"{r}/field/flux.png", f"{r}/field/metrics.json"] if "field" in config else [],
         "leave_one_out": [p for g in leave_one_out_groups(config)
                           for p in (f"{r}/figures/leave_one_out/{g}.png", f"{r}/leave_one_out/{g}.csv")],

@@ -74,7 +74,7 @@ CASES = {
 @pytest.mark.parametrize("hidden", list(CASES))
 def test_a_hidden_effect_is_ranked_first_and_fitting_it_halves_the_heldout_error(hidden):
     world, model = CASES[hidden]
-    _, _, ranking, _ = diagnosis(world, model, max_effects=1).rank()  # the best single change
+    _, _, ranking, _, _ = diagnosis(world, model, max_effects=1).rank()  # the best single change
     top = ranking[0]
     assert top["effect"] == hidden, [(r["effect"], round(r["relative_reduction"], 3)) for r in ranking]
     assert top["relative_reduction"] >= 0.5
@@ -87,7 +87,7 @@ def test_two_hidden_effects_take_the_top_two_places():
     alone, the flexible surface mimics both in part and wins; the best pair, both needed, beats it,
     and adding the two cuts the held-out error by at least half."""
     world = {"sunshape": BUIE, "tracking": {"axis2_offset_mrad": 2.5}, "canting": {}}
-    before, _, ranking, _ = diagnosis(world, {"sunshape": BUIE}).rank()
+    before, _, ranking, _, _ = diagnosis(world, {"sunshape": BUIE}).rank()
     summary = [(r["effect"], round(r["relative_reduction"], 3), r["meaningful"]) for r in ranking]
     assert {r["effect"] for r in ranking[:2]} == {"canting", "tracking"}, summary
     assert ranking[0]["meaningful"] and ranking[1]["meaningful"], summary
@@ -100,16 +100,19 @@ def test_a_model_that_matches_the_world_raises_no_alarm():
     """The measurements carry 2 % noise: fitting more parameters must not pass as a finding."""
     world = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 1.0}}
     d = diagnosis(world, world, noise=0.02)
-    _, _, ranking, _ = d.rank()
+    _, _, ranking, _, _ = d.rank()
     assert not any(r["meaningful"] for r in ranking), [(r["effect"], r["relative_reduction"]) for r in ranking]
     assert all(len(key) <= 1 for key in d.fits)  # no single change helps alone: no pair is fitted
+    remaining = d.remaining([])  # what is left is the noise, and the noise floor says so
+    assert remaining["explained"], remaining
+    assert remaining["error"] / 1.5 <= remaining["noise_floor"] <= 1.5 * remaining["error"], remaining
 
 
 def test_scale_effects_are_not_identifiable_and_ranked_last():
     world = {"sunshape": BUIE, "reflectivity": {"value": 0.8}}
     d = diagnosis(world, {"sunshape": BUIE})
     d.tried = [c for c in d.tried if c.label in ("reflectivity", "slope_error")]
-    _, _, ranking, _ = d.rank()
+    _, _, ranking, _, _ = d.rank()
     assert [r["effect"] for r in ranking] == ["slope_error", "reflectivity"]
     assert ranking[1]["identifiable"] is False and not ranking[1]["meaningful"]
     assert ranking[1]["fitted"]["value"] == pytest.approx(0.8, abs=0.01)  # the scale is still measured

@@ -112,7 +112,7 @@ def files(tmp_path):
         "recovery": [str(r / "recovery/scan.json")],
         "diagnosis": [str(r / "diagnosis/scan.json")],
         "diagnosis_figures": [_png(r / f"figures/diagnosis/scan_{k}.png")
-                              for k in ("signatures", "ranking", "residuals", "ledger")],
+                              for k in ("signatures", "ranking", "residuals", "location", "ledger")],
         "field": [_png(r / "field/flux.png"), str(r / "field/metrics.json")],
         "leave_one_out": [_png(r / "figures/leave_one_out/aa39.png"), str(r / "leave_one_out/aa39.csv")],
     }
@@ -257,7 +257,7 @@ def test_report_inputs_of_the_tiny_config_list_the_expected_files():
     assert inputs["diagnosis"] == diagnosis_paths(config)
     assert diagnosis_paths(config) == [f"{r}/diagnosis/{d}.json" for d in ("scan", "sky")]
     assert f"{r}/figures/diagnosis/sky_ledger.png" in inputs["diagnosis_figures"]
-    assert len(inputs["diagnosis_figures"]) == 8
+    assert len(inputs["diagnosis_figures"]) == 10
     assert inputs["field"] == [f"{r}/field/flux.png", f"{r}/field/metrics.json"]
     assert inputs["recovery"] == []  # drt is not among the networks
 

@@ -8,6 +8,7 @@ rule diagnose:
         signatures=f"{RESULTS}/figures/diagnosis/{{dataset}}_signatures.png",
         ranking=f"{RESULTS}/figures/diagnosis/{{dataset}}_ranking.png",
         residuals=f"{RESULTS}/figures/diagnosis/{{dataset}}_residuals.png",
+        location=f"{RESULTS}/figures/diagnosis/{{dataset}}_location.png",
         ledger=f"{RESULTS}/figures/diagnosis/{{dataset}}_ledger.png",
     params:
         torch_threads=TORCH_THREADS,
@@ -22,4 +23,5 @@ rule diagnose:
         "helioflow --threads {params.torch_threads:q} diagnose --spec {params.spec:q} --dataset {input.dataset:q}"
         " --heliostat {input.heliostat:q} --output {output.diagnosis:q} --ledger {params.ledger:q}"
         " --signatures {output.signatures:q} --ranking {output.ranking:q} --residuals {output.residuals:q}"
+        " --location {output.location:q}"
         " --ledger-figure {output.ledger:q} > {log:q} 2>&1"

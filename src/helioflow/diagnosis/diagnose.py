@@ -44,10 +44,11 @@ from helioflow.data.hdf5 import read_dataset
 from helioflow.data.surfaces import read_heliostat
 from helioflow.device import resolve_device
 from helioflow.diagnosis.candidates import Candidate, candidates, implausible, separating
+from helioflow.diagnosis.noise import measure_noise, noise_floor
+from helioflow.diagnosis.residuals import by_sun_position, in_image, on_mirror
 from helioflow.errors import DataError
 from helioflow.io import write_text_atomic
 from helioflow.models.physics_fit import (
-    TENSORS,
     FitResult,
     FitSettings,
     Measurements,
@@ -67,27 +68,17 @@ THRESHOLD = 0.25  # relative held-out error reduction a candidate needs to count
 ABSOLUTE_FLOOR = 0.002  # ... and absolute reduction of the misplaced flux fraction
 ROUNDING = 1e-3  # relative: a nested fit that ends no worse than its start up to this (float32 rounding of
 #                   a loss that is a small difference of large numbers) keeps its own values
+NOISE_METHOD = ("parametric bootstrap: the final model's held-out images re-noised with the noise measured in "
+                "the images (per signal level, Immerkaer's operator; diagnosis/noise.py) and scored like the "
+                "measurements")
 CONFOUNDED_RATIO = 1.5  # two changes whose held-out errors are within this factor explain the same residual alike
 CORE_FRACTION = 0.05  # the sun-limited core: pixels where the model's spot exceeds this fraction of its peak
-
-MISSING_TEXT = {
-    "sunshape": "a wider sun shape", "slope_error": "slope error (small-scale mirror roughness)",
-    "tracking": "a tracking error (kinematic offsets of the heliostat's axes)",
-    "canting": "facet canting errors", "surface": "a surface deformation (smooth mirror shape errors)",
-    "camera": "the camera's response (background and blur)", "attenuation": "atmospheric attenuation",
-    "reflectivity": "a lower mirror reflectivity",
-}
-SIGNATURE_TEXT = {
-    "sunshape": "the measured spots are {width} than the model's, in every direction",
-    "slope_error": "the measured spots are {width} than the model's, in every direction",
-    "tracking": "the spot centroids are off by {centroid:.2f} mrad RMS, varying with sun position",
-    "canting": "the measured spots have a different structure (facets' images do not overlap as the model's do)",
-    "surface": "the measured spot shapes differ from the model's in ways that change with the sun position",
-    "camera": "{outside:.1%} of the measured flux lies outside the model's spot (background or blur)",
-    "attenuation": "the measured flux is {ratio:.3f} times the model's (a scale)",
-    "reflectivity": "the measured flux is {ratio:.3f} times the model's (a scale)",
-}
-
+EXPLAINED = 2.0  # a held-out error up to this many times the noise floor is explained down to the noise (a fitted
+#                  model adds its parameters' estimation error to the noise: 0.9-1.7 x on the independent cases)
+MIRROR_IMAGES = 48  # images (evenly picked) the mirror localisation traces, region by region
+NUMERICAL_FLOOR = 0.001  # misplaced flux below which a noise floor is not resolved by the diagnosis' fits
+PARTLY = 0.1  # a best candidate that cuts an unexplained residual by this much is named as explaining part of it
+SWAP_NOISE = 0.5  # swapping a chosen change for another that ends within this fraction of the noise floor: alike
 
 def model_hash(effects: dict) -> str:
     """Short hash of a model effect list's content: the ledger's key for a model revision."""
@@ -138,6 +129,8 @@ class Diagnosis:
         self.tried, self.skipped = candidates(effects, scene.heliostat.n_facets)
         self.candidate = {c.label: c for c in self.tried}
         self.fits: dict[frozenset, tuple[float, FitResult]] = {}
+        self.noise = measure_noise(torch.cat((train.images, heldout.images)))
+        self.floors: dict[frozenset, float] = {}
 
     def effects_with(self, labels) -> dict:
         """The model's effect list with the candidates `labels` applied."""
@@ -184,13 +177,35 @@ class Diagnosis:
         if c.neutral is None:
             return None
         effects = {e: dict(p) for e, p in base.effects.items()}
-        effects[c.effect] = dict(c.params) if c.effect in TENSORS else dict(c.neutral)
+        effects[c.effect] = dict(c.params) if REGISTRY[c.effect].tensor is not None else dict(c.neutral)
         zeros, _ = initial_tensors(self.effects_with(key), self.scene.heliostat)
         tensors = {**zeros, **base.tensors}
         return FitResult(effects, tensors, list(base.history), fitted_parameters(self.effects_with(key)))
 
     def error(self, labels) -> float:
         return self.fitted(labels)[0]
+
+    def floor(self, labels) -> float:
+        """The held-out error that noise alone would leave if the model with the candidates `labels`
+        were the truth (diagnosis/noise.py: its held-out images re-noised like the measurements)."""
+        key = frozenset(labels)
+        if key not in self.floors:
+            result = self.fitted(key)[1]
+            with torch.no_grad():
+                pred = self.scene.simulate(result.effects, result.tensors, self.heldout.azimuth_deg,
+                                           self.heldout.elevation_deg)
+            self.floors[key] = float(noise_floor(pred, self.heldout.images, self.noise)[0].mean())
+        return self.floors[key]
+
+    def remaining(self, labels) -> dict:
+        """What remains after the candidates `labels`: held-out error, the noise floor, their ratio,
+        and whether it is explained down to the noise (within EXPLAINED times the floor). The ratio
+        is taken to at least NUMERICAL_FLOOR: on noise-free images (a synthetic dataset) the
+        diagnosis' own fits, at their settings, cannot claim less."""
+        error, floor = self.error(labels), self.floor(labels)
+        ratio = error / max(floor, NUMERICAL_FLOOR)
+        return {"changes": list(labels), "error": error, "noise_floor": floor, "over_noise": ratio,
+                "explained": bool(ratio <= EXPLAINED), "against": max(floor, NUMERICAL_FLOOR)}
 
     def select(self) -> list[str]:
         """The candidates the measurements need (best subset, module doc), in the order a forward
@@ -213,8 +228,9 @@ class Diagnosis:
             order.append(min((n for n in chosen if n not in order), key=lambda n: self.error([*order, n])))
         return order
 
-    def rank(self) -> tuple[float, FitResult, list[dict], list[dict]]:
-        """(held-out error of the model, the model's fit, ranking best first, effects not tested).
+    def rank(self) -> tuple[float, FitResult, list[dict], list[dict], list[str]]:
+        """(held-out error of the model, the model's fit, ranking best first, effects not tested,
+        the selected candidates).
 
         The selected candidates first, in forward order (each entry's before/after is the held-out
         error without and with it, the candidates above it included), then the rest, each added
@@ -228,8 +244,32 @@ class Diagnosis:
         ranking += rest
         for r in ranking:
             r["reduction_alone"] = 1.0 - self.error([r["effect"]]) / max(before, 1e-30)
-            r["confounded_with"] = self.confounded(r["effect"])
-        return before, self.fitted(())[1], ranking, self.skipped
+            alike = self.confounded(r["effect"])
+            if r["effect"] in selected:
+                seen = {c["effect"] for c in alike}
+                alike += [c for c in self.swapped(r["effect"], selected) if c["effect"] not in seen]
+            r["confounded_with"] = alike
+        return before, self.fitted(())[1], ranking, self.skipped, selected
+
+    def swapped(self, label: str, chosen: list[str]) -> list[dict]:
+        """Candidates that can stand in for `label` among the chosen ones: the chosen set with
+        `label` swapped for them ends within SWAP_NOISE of the noise floor of the chosen set's
+        held-out error (or lower), given the other chosen changes. With the measurement that
+        separates them."""
+        rest = [n for n in chosen if n != label]
+        error, tolerance = self.error(chosen), SWAP_NOISE * max(self.floor(chosen), NUMERICAL_FLOOR)
+        out = []
+        for c in self.tried:
+            other = c.label
+            if (other in chosen or not REGISTRY[c.effect].identifiable or not self.compatible([*rest, other])
+                    or c.effect == self.candidate[label].effect):
+                continue
+            swapped = self.error([*rest, other])
+            if swapped <= error + tolerance:
+                out.append({"effect": other, "relative_reduction": 1.0 - swapped / max(self.error(rest), 1e-30),
+                            "given": rest, "heldout_error": swapped,
+                            "separated_by": separating(self.candidate[label].effect, c.effect)})
+        return out
 
     def confounded(self, label: str) -> list[dict]:
         """Candidates that explain the same residual as `label`: each alone cuts the held-out error
@@ -249,8 +289,8 @@ class Diagnosis:
                 continue
             if self.max_effects >= 2 and is_meaningful(min(mine, theirs), self.error([label, other])):
                 continue
-            out.append({"effect": other, "relative_reduction": 1.0 - theirs / max(before, 1e-30),
-                        "separated_by": separating(self.candidate[label].effect, c.effect)})
+            out.append({"effect": other, "relative_reduction": 1.0 - theirs / max(before, 1e-30), "given": [],
+                        "heldout_error": theirs, "separated_by": separating(self.candidate[label].effect, c.effect)})
         return out
 
     def _entry(self, name: str, base: list[str], meaningful: bool) -> dict:
@@ -294,26 +334,36 @@ def _summarised(values: dict) -> dict:
     return out
 
 
-def verdict(ranking: list[dict], summary: dict) -> str:
-    """One plain-language paragraph: what is missing or off, the evidence, how much fitting it
-    helps, what it is confounded with and how to tell them apart, implausible fitted values, and
-    the config line to paste."""
-    if not ranking:
-        return "No effect could be tested: the model contains every registry effect that applies here."
+def verdict(ranking: list[dict], summary: dict, remaining: dict, location: dict) -> str:
+    """One plain-language paragraph with one of three outcomes: the residual is explained down to
+    the noise; a registry effect is found (what, the evidence, how much fitting it helps, what it
+    is confounded with and how to tell them apart, implausible fitted values, the config line),
+    ending with what remains; or a residual well above the noise remains that no candidate
+    explains, with where it lives (`location`: by_sun_position, in_image, on_mirror)."""
     meaningful = [r for r in ranking if r["meaningful"]]
     if not meaningful:
-        best = ranking[0]
-        change = (f"cuts it by {best['relative_reduction']:.0%}" if best["relative_reduction"] > 0
-                  else "does not lower it")
-        return (f"No missing effect found: no change to the model cuts the held-out error (misplaced flux "
-                f"{best['heldout_error_before']:.3f}) by {THRESHOLD:.0%} or more; the best, "
-                f"{_words(best)}, {change}. The model explains the measurements as far as the registry's effects "
-                "can tell.")
+        error, ratio = remaining["error"], remaining["over_noise"]
+        if ranking:
+            best = ranking[0]
+            change = (f"cuts it by {best['relative_reduction']:.0%}" if best["relative_reduction"] > 0
+                      else "does not lower it")
+            tried = f"no change to the model cuts it by {THRESHOLD:.0%} or more (the best, {_words(best)}, {change})"
+        else:
+            tried = "no effect could be tested: the model contains every registry effect that applies here"
+        if remaining["explained"]:
+            return (f"Explained down to the noise: the model's held-out error (misplaced flux {error:.3f}) is "
+                    f"{ratio:.1f} times {_floor_words(remaining)}, and {tried}.")
+        partly = ranking and ranking[0]["relative_reduction"] >= PARTLY
+        hint = (f"{_words(ranking[0]).capitalize()} explains part of it; an effect the registry lacks may explain the rest"
+                if partly else "An effect the registry lacks is likely")
+        return (f"A residual {ratio:.1f} times the noise remains that no candidate explains: held-out misplaced flux "
+                f"{error:.3f}, {ratio:.1f} times {_floor_words(remaining)}, and {tried}. {_lives(location)} {hint}: "
+                "see docs/adding_an_effect.md.")
     top = meaningful[0]
     effect = top["changes"]
-    evidence = SIGNATURE_TEXT[effect].format(**summary)
+    evidence = REGISTRY[effect].signature_text.format(**summary)
     if top["change"] == "add":
-        lacks = f"The model lacks {MISSING_TEXT[effect]}"
+        lacks = f"The model lacks {REGISTRY[effect].missing_text}"
     elif top["change"] == "switch":
         lacks = f"The model's sun is not the one it assumes: a {top['effect'].split(': ')[1]} sun fits better"
     else:
@@ -325,12 +375,35 @@ def verdict(ranking: list[dict], summary: dict) -> str:
         text += f" Also needed, each added to the changes before it: {others}."
     for r in meaningful:
         for c in r["confounded_with"]:
+            given = f"given {', '.join(g.replace('_', ' ') for g in c['given'])}" if c["given"] else "alone"
             text += (f" {_words(r).capitalize()} and {c['effect'].replace('_', ' ')} ({c['relative_reduction']:.0%} "
-                     f"alone) explain the same residual on these images: {c['separated_by']} would tell them apart.")
+                     f"{given}) explain the same residual on these images: {c['separated_by']} would tell them apart.")
         for flag in implausible({f"{r['changes']}.{k}": v for k, v in r["fitted"].items()}):
             text += f" The fitted {flag} is implausible: it likely stands in for another effect."
+    if remaining["explained"]:
+        text += (f" What remains (misplaced flux {remaining['error']:.3f}) is {remaining['over_noise']:.1f} times the "
+                 "noise: explained down to the noise.")
+    else:
+        text += (f" Even so, a residual {remaining['over_noise']:.1f} times the noise remains (misplaced flux "
+                 f"{remaining['error']:.3f}, against {_floor_words(remaining)}) that no candidate explains. "
+                 f"{_lives(location)}")
     lines = "; ".join(f"`{r['config']}`" for r in meaningful)
     return text + f" To add it, put under model.effects in config.yaml: {lines}; rerun, and look again."
+
+
+def _floor_words(remaining: dict) -> str:
+    """What the remaining error is compared with, in words."""
+    if remaining["noise_floor"] < NUMERICAL_FLOOR:
+        return (f"the diagnosis' numerical floor ({NUMERICAL_FLOOR}: these images hold almost no noise, "
+                f"{remaining['noise_floor']:.5f})")
+    return f"what noise alone leaves on these images ({remaining['noise_floor']:.3f})"
+
+
+def _lives(location: dict) -> str:
+    """Where the residual lives, in one sentence."""
+    parts = [f"against the sun, {location['sun_position']['where']}",
+             f"in the image, {location['image']['where']}", f"on the mirror, {location['mirror']['where']}"]
+    return "Where it lives: " + "; ".join(parts) + "."
 
 
 def _words(entry: dict) -> str:
@@ -399,14 +472,14 @@ def scoring_split(ds) -> tuple[np.ndarray, np.ndarray, dict]:
     train = ds.indices("train")
     heldout = np.concatenate((ds.indices("interpolation"), ds.indices("extrapolation")))
     if len(heldout):
-        return train, heldout, {"source": "held-out splits", "images": int(len(heldout)), "note": ""}
+        return train, heldout, {"source": "held-out splits", "images": len(heldout), "note": ""}
     if len(train) < 2:
-        return train, train, {"source": "the training image", "images": int(len(train)),
+        return train, train, {"source": "the training image", "images": len(train),
                               "note": ("The dataset has one image and holds none out: every error below is a "
                                        "training error, and no candidate is tested on an image it was not fitted to.")}
     own = train[1::OWN_HOLDOUT_EVERY]
     return np.setdiff1d(train, own), own, {
-        "source": f"every {OWN_HOLDOUT_EVERY}th training image", "images": int(len(own)),
+        "source": f"every {OWN_HOLDOUT_EVERY}th training image", "images": len(own),
         "note": (f"The dataset holds no images out (every image trains the networks), so the diagnosis held out "
                  f"{len(own)} of its {len(train)} images (every {OWN_HOLDOUT_EVERY}th) to score the candidates.")}
 
@@ -442,27 +515,46 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     diagnosis = Diagnosis(fit_scene, effects, _measurements(ds, pick(train_index, settings["fit_images"]), scale, device),
                           _measurements(ds, pick(heldout_index, settings["heldout_images"]), scale, device), fit,
                           settings["max_effects"])
-    before, model, ranking, skipped = diagnosis.rank()
+    before, model, ranking, skipped, chosen = diagnosis.rank()
+    remaining = diagnosis.remaining(chosen)
+    final = diagnosis.fitted(chosen)[1]
     everything = _measurements(ds, np.arange(len(ds.images)), scale)
+    sun = everything.azimuth_deg.to(device), everything.elevation_deg.to(device)
     with torch.no_grad():
-        pred, lost = fit_scene.simulate(model.effects, model.tensors, everything.azimuth_deg.to(device),
-                                        everything.elevation_deg.to(device), with_lost=True)
+        pred, lost = fit_scene.simulate(model.effects, model.tensors, *sun, with_lost=True)
         pred, lost = pred.cpu() / scale, lost.cpu() / scale
+        last, last_lost = fit_scene.simulate(final.effects, final.tensors, *sun, with_lost=True)
+        last, last_lost = last.cpu() / scale, last_lost.cpu() / scale
     slant = float(np.linalg.norm(np.subtract(ds.attrs["target_center_m"], heliostat.position.cpu().numpy())))
     sig = signatures(fit_scene, pred, everything.images, slant)
     summary = summarise(sig)
     if ds.attrs.get("per_image_normalised"):  # each image divided by its own peak: no absolute energy
         sig.pop("energy_ratio")
         summary["ratio"] = None
+    floor_each = noise_floor(last, everything.images, diagnosis.noise)[0]
+    error_each = misplaced_flux(last, everything.images, last_lost).numpy()
+    over_noise = error_each / np.maximum(floor_each, NUMERICAL_FLOOR)
+    few = pick(np.arange(len(ds.images)), MIRROR_IMAGES)  # the mirror's images (traced once per region)
+    at = torch.as_tensor(few)
+    location = {"changes": chosen, "sun_position": by_sun_position(ds.azimuth_deg, ds.elevation_deg, over_noise),
+                "image": in_image(fit_scene, last, everything.images),
+                "mirror": on_mirror(fit_scene, final.effects, final.tensors, *(a[at.to(a.device)] for a in sun),
+                                    everything.images[at].to(device), over_noise[few] > EXPLAINED)}
     ledger = update_ledger(ledger_path, str(ds.attrs.get("config_hash", Path(dataset_path).stem)), effects, before)
     result = {
         "dataset": ds.attrs.get("dataset", Path(dataset_path).stem),
         "model_effects": effects,
         "model_hash": model_hash(effects),
         "error_measure": ERROR_MEASURE,
-        "threshold": {"relative_reduction": THRESHOLD, "absolute_reduction": ABSOLUTE_FLOOR},
+        "threshold": {"relative_reduction": THRESHOLD, "absolute_reduction": ABSOLUTE_FLOOR,
+                      "explained_over_noise": EXPLAINED, "numerical_floor": NUMERICAL_FLOOR},
         "heldout_error": before,
         "heldout": heldout,
+        "noise_floor": remaining["noise_floor"],
+        "noise": {"method": NOISE_METHOD, "model": diagnosis.noise.as_json()},
+        "remaining": {k: remaining[k] for k in ("changes", "error", "over_noise", "explained")},
+        "remaining_note": (f"the images hold almost no noise: what remains is compared with the diagnosis' numerical floor "
+                           f"({NUMERICAL_FLOOR})" if remaining["noise_floor"] < NUMERICAL_FLOOR else ""),
         "model_fitted": _summarised(model.fitted_values()),
         "ranking": ranking,
         "not_tested": skipped,
@@ -472,8 +564,11 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
                                 "predicted flux" if summary["ratio"] is None else ""),
                        "per_image": {"azimuth_deg": ds.azimuth_deg.tolist(), "elevation_deg": ds.elevation_deg.tolist(),
                                      "split": ds.split.tolist(),
-                                     **{k: np.round(v, 5).tolist() for k, v in sig.items()}}},
-        "verdict": (heldout["note"] + " " if heldout["note"] else "") + verdict(ranking, summary),
+                                     **{k: np.round(v, 5).tolist() for k, v in sig.items()},
+                                     "remaining_error": np.round(error_each, 5).tolist(),
+                                     "noise_floor": np.round(floor_each, 5).tolist()}},
+        "location": location,
+        "verdict": (heldout["note"] + " " if heldout["note"] else "") + verdict(ranking, summary, remaining, location),
         "ledger": ledger,
     }
     error = misplaced_flux(pred, everything.images, lost).numpy()

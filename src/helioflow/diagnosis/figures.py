@@ -114,8 +114,62 @@ def plot_ledger(result: dict, path) -> None:
     save_figure(fig, path)
 
 
+def plot_location(result: dict, path) -> None:
+    """Where the remaining residual lives: error over noise against sun elevation and azimuth, the
+    flux the measurements have more or less than the model in each part of the spot, and the light
+    each mirror region sends relative to the model in the images that carry the residual and in the others."""
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    loc, per = result["location"], result["signatures"]["per_image"]
+    ratio = np.asarray(per["remaining_error"]) / np.maximum(np.asarray(per["noise_floor"]), 1e-12)
+    split = np.asarray(per["split"])
+    fig = plt.figure(figsize=(15, 10.5))
+    grid = fig.add_gridspec(2, 6, height_ratios=(1, 1.3))
+    axes = [fig.add_subplot(grid[0, 2 * i:2 * i + 2]) for i in range(3)]
+    axes += [fig.add_subplot(grid[1, 3 * i:3 * i + 3]) for i in range(2)]
+    for ax, angle in zip(axes[:2], ("elevation_deg", "azimuth_deg")):
+        for name, colour in SPLIT_COLOURS.items():
+            m = split == name
+            ax.scatter(np.asarray(per[angle])[m], ratio[m], s=10, c=colour, label=name)
+        ax.axhline(result["threshold"]["explained_over_noise"], color="k", lw=0.8, ls="--", label="explained below")
+        ax.set_xlabel(f"sun {angle.replace('_deg', '')} (deg)")
+        ax.set_ylabel("remaining error / noise floor")
+        ax.set_ylim(bottom=0)
+    axes[0].legend(fontsize=7)
+    sides = ("above", "below", "right", "left", "core", "halo")
+    values = [loc["image"][k] for k in sides]
+    axes[2].bar(sides, values, color=["tab:red" if v > 0 else "tab:blue" for v in values])
+    axes[2].axhline(0, color="k", lw=0.8)
+    axes[2].set_ylabel("measured − model flux (fraction of the image)")
+    axes[2].set_title("where in the spot", fontsize=9)
+    regions, mirror = loc["mirror"]["regions"], loc["mirror"]["weight"]
+    span = max(0.1, max(abs(w - 1.0) for key in ("affected", "others") for w in mirror[key]))
+    colours = plt.Normalize(1.0 - span, 1.0 + span)
+    n = loc["mirror"]["affected_images"]
+    over = f"{result['threshold']['explained_over_noise']} x noise"
+    for ax, key, title in ((axes[3], "affected", f"the {n} images over {over}" if n else f"all images (none over {over})"),
+                           (axes[4], "others", "the other images" if n else "(no other images)")):
+        for r, w in zip(regions, mirror[key]):
+            ax.add_patch(Rectangle((r["right_m"] - r["width_m"] / 2, r["up_m"] - r["height_m"] / 2), r["width_m"],
+                                   r["height_m"], facecolor=plt.cm.RdBu(colours(w)), edgecolor="white", lw=0.5))
+            ax.text(r["right_m"], r["up_m"], f"{w:.2f}", ha="center", va="center", fontsize=7)
+        ax.set_xlim(min(r["right_m"] - r["width_m"] for r in regions), max(r["right_m"] + r["width_m"] for r in regions))
+        ax.set_ylim(min(r["up_m"] - r["height_m"] for r in regions), max(r["up_m"] + r["height_m"] for r in regions))
+        ax.set_aspect("equal")
+        ax.set_xlabel("mirror right (m), seen from the target")
+        ax.set_ylabel("up (m)")
+        ax.set_title(f"light sent / model's: {title}", fontsize=9)
+    fig.colorbar(plt.cm.ScalarMappable(colours, "RdBu"), cax=fig.add_axes((0.93, 0.12, 0.012, 0.3)),
+                 label="relative light (1 = model)")
+    _verdict_title(fig, result["verdict"])
+    fig.subplots_adjust(top=0.8, hspace=0.3, wspace=0.9, left=0.06, right=0.9)
+    save_figure(fig, path)
+
+
 def plot_diagnosis(result: dict, ds, pred: np.ndarray, meas: np.ndarray, error: np.ndarray, figures: dict) -> None:
-    """All four figures; `figures` maps signatures, ranking, residuals, ledger to paths."""
+    """All five figures; `figures` maps signatures, ranking, residuals, location, ledger to paths."""
+    plot_location(result, figures["location"])
     plot_signatures(result, figures["signatures"])
     plot_ranking(result, figures["ranking"])
     plot_residuals(result, ds, pred, meas, error, figures["residuals"])

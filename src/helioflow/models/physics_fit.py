@@ -70,17 +70,15 @@ from tqdm import tqdm
 
 from helioflow.errors import DataError
 from helioflow.io import fingerprint, load_torch, save_torch_atomic
-from helioflow.physics.effects import FIT, REGISTRY, fitted_parameters
+from helioflow.physics.effects import REGISTRY, TENSOR_EFFECTS, fitted_parameters, with_role
 from helioflow.physics.heliostat import Heliostat
 from helioflow.physics.scene import LinearisedScene, Scene, effective_tensors, normalised
 from helioflow.physics.target import gaussian_blur
 
 log = logging.getLogger(__name__)
 
-SCALES = {("camera", "gain"), ("reflectivity", "value"), ("attenuation", "transmittance")}
-OFFSETS = {("camera", "background_w_m2")}
-TENSORS = {"tracking": "tracking", "canting": "facet_tilts_mrad", "surface": "control_heights_mm"}
-FD_STEPS = {"tracking": 0.01, "canting": 0.01, "surface": 0.002}  # central-difference steps (mrad, mrad, mm)
+SCALES = with_role("scale")  # (effect, parameter) pairs fitted in closed form (the registry's roles)
+OFFSETS = with_role("offset")
 HOP_BLURS_PX = (2.0, 0.0)  # blur levels of the descents after a basin hop
 HOP_BLOCK_SIZES = (1, 2, 4)  # facets a basin hop resets: a facet and its nearest neighbours
 PIN_STEPS = 100  # traces of each of a pinned hop's two descents (the rest, then everything)
@@ -118,34 +116,23 @@ class FitResult:
             if effect not in self.tensors and not REGISTRY[effect].parameter(name).array:
                 out[f"{effect}.{name}"] = self.effects[effect][name]
         for effect, tensor in self.tensors.items():
-            if effect == "tracking":
-                out.update({f"tracking.{n}": float(v) for n, v in zip(_tracking_names(), tensor.tolist())})
+            scalars = [p.name for p in REGISTRY[effect].parameters if not p.array]
+            if scalars:  # a tensor of named scalars (tracking): one value each
+                out.update({f"{effect}.{n}": float(v) for n, v in zip(scalars, tensor.tolist())})
             else:
-                out[f"{effect}.{TENSORS[effect]}"] = [round(v, 4) for v in tensor.flatten().tolist()]
+                out[f"{effect}.{TENSOR_EFFECTS[effect].key}"] = [round(v, 4) for v in tensor.flatten().tolist()]
         return out
-
-
-def _tracking_names() -> list[str]:
-    return [p.name for p in REGISTRY["tracking"].parameters]
 
 
 def initial_tensors(effects: dict, heliostat: Heliostat) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
     """(tensors, masks) for the heliostat tensors an effect list fits: start values (given values
-    for tracking parameters, zeros otherwise) and which entries are free (bool, same shape)."""
+    for tracking parameters, zeros otherwise) and which entries are free (bool, same shape); each
+    tensor effect's `initial` says."""
     tensors, masks = {}, {}
-    device = heliostat.facet_size.device
-    tracking = effects.get("tracking")
-    if tracking and any(v == FIT for v in tracking.values()):
-        names = _tracking_names()
-        values = [tracking.get(n, 0.0) for n in names]
-        tensors["tracking"] = torch.tensor([0.0 if v == FIT else float(v) for v in values], device=device)
-        masks["tracking"] = torch.tensor([tracking.get(n) == FIT for n in names], device=device)
-    if (effects.get("canting") or {}).get("facet_tilts_mrad") == FIT:
-        tensors["canting"] = torch.zeros(heliostat.n_facets, 2, device=device)
-        masks["canting"] = torch.ones(heliostat.n_facets, 2, dtype=torch.bool, device=device)
-    if (effects.get("surface") or {}).get("control_heights_mm") == FIT:
-        tensors["surface"] = torch.zeros(heliostat.control_heights.shape, device=device)
-        masks["surface"] = torch.ones(heliostat.control_heights.shape, dtype=torch.bool, device=device)
+    for name, role in TENSOR_EFFECTS.items():
+        start = role.initial(effects.get(name) or {}, heliostat) if name in effects else None
+        if start is not None:
+            tensors[name], masks[name] = start
     return tensors, masks
 
 
@@ -204,8 +191,7 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
     effects = {e: dict(p or {}) for e, p in effects.items()}
     pairs = fitted_parameters(effects)
     linear = [p for p in pairs if p in SCALES or p in OFFSETS]
-    spread = [p for p in pairs if p not in linear and not REGISTRY[p[0]].parameter(p[1]).array
-              and p[0] != "tracking"]
+    spread = [p for p in pairs if REGISTRY[p[0]].parameter(p[1]).role == "spread"]
     tensors, masks = initial_tensors(effects, scene.heliostat)
     for e, k in pairs:  # start values (module docstring): spreads at their default with tensors, else
         p = REGISTRY[e].parameter(k)  # (almost) absent; a linear scalar at its default
@@ -489,7 +475,7 @@ class _Fitter:
     def gauss_newton(self, effects: dict, tensors: dict, masks: dict) -> tuple[dict, list[float]]:
         """`gauss_newton_steps` Gauss-Newton steps on the free tensor entries; returns (tensors,
         loss after each step). The Jacobian of the residual images (pixels x entries) comes from
-        central differences of FD_STEPS, two traces per entry: the splatted images are rough on a
+        central differences of each tensor effect's `fd_step`, two traces per entry: the splatted images are rough on a
         finer scale (at the stalled sanity_check fit, autograd and 0.01 mrad differences differ by
         12 % in the tracking gradient and by a factor 5 along the flat valley). A step is halved
         (down to 1/8) until the loss falls; when none does, the steps end. Directions the model
@@ -511,9 +497,9 @@ class _Fitter:
                 moved = []
                 for sign in (1.0, -1.0):
                     v = current[k].clone()
-                    v[i] += sign * FD_STEPS[k]
+                    v[i] += sign * TENSOR_EFFECTS[k].fd_step
                     moved.append(residual({**current, k: v}))
-                columns.append((moved[0] - moved[1]) / (2.0 * FD_STEPS[k]))
+                columns.append((moved[0] - moved[1]) / (2.0 * TENSOR_EFFECTS[k].fd_step))
             jacobian = torch.stack(columns, 1)
             normal = jacobian.T @ jacobian
             damping = 1e-9 * normal.diagonal().mean() * torch.eye(len(free), dtype=normal.dtype, device=normal.device)

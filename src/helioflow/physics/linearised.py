@@ -27,10 +27,12 @@ from torch import Tensor
 from helioflow.physics.geometry import normalize, sun_vector
 from helioflow.physics.heliostat import Heliostat, deformation, facet_frames, sample_surface
 from helioflow.physics.raytrace import (
+    MirrorPoints,
     Optics,
     _project,
     central_hits,
     mean_rays,
+    mirror_points,
     padded_canvas,
     splat_footprints,
 )
@@ -59,6 +61,7 @@ class LinearisedTrace:
         unit, path: (S, 3) the power-weighted mean ray on the target's (normal, right, up) and (S,)
             its length (m): where each image's footprint is evaluated.
         distance: the heliostat-target distance (m) a transmittance is evaluated at.
+        points: the cells as a mirror mask sees them at the linearisation point (shapes (S, F * P, 3)).
         at: the effective error tensors ({"tracking": (5,), "canting": (F, 2), "surface":
             (F, C, C)}, mrad and mm) the hits were traced at.
         target: the target the images lie on.
@@ -74,6 +77,7 @@ class LinearisedTrace:
     distance: float
     at: dict
     target: Target
+    points: MirrorPoints
 
     def images(self, tensors: dict[str, Tensor], optics: Optics, facets: Tensor | None = None,
                with_launched: bool = False) -> Tensor | tuple[Tensor, Tensor]:
@@ -98,7 +102,11 @@ class LinearisedTrace:
         factor = optics.dni * optics.reflectivity
         if optics.transmittance is not None:
             factor = factor * optics.transmittance(torch.tensor(self.distance, dtype=moved.dtype, device=moved.device))
-        power = (self.power[:, index] * factor).reshape(n_sun, -1)
+        power = self.power * factor
+        if optics.mirror_mask is not None:
+            weight = optics.mirror_mask(self.points).to(power)
+            power = power * torch.broadcast_to(weight, (n_sun, weight.shape[-1])).reshape(power.shape)
+        power = power[:, index].reshape(n_sun, -1)
         moved = moved.reshape(n_sun, -1, 2)
         flux = splat_footprints(moved[..., 0], moved[..., 1], power, self.unit, self.path, self.target,
                                 optics) / self.target.pixel_area
@@ -163,6 +171,11 @@ def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: 
         return x.to(device=device, dtype=dtype)
 
     derivatives = {k: back(torch.stack([derivative(k, i) for i in range(counts[k])], -1)) for k in at}
+    moved = replace(h, tracking_error=base["tracking"] * 1e-3, canting_error=base["canting"] * 1e-3,
+                    control_heights=base["surface"] * 1e-3)
+    points = mirror_points(moved, sample_surface(moved, g), sun, t64.aim_point)[0]
+    points = MirrorPoints(*(back(x) for x in (points.local, points.world, points.to_sun, points.reflected,
+                                                points.aim)))
     return LinearisedTrace(back(hits), derivatives, back(h.facet_size), g, back(power), back(mean_unit),
                            back(mean_path), float((target.center - heliostat.position).norm()),
-                           {k: back(v) for k, v in at.items()}, target)
+                           {k: back(v) for k, v in at.items()}, target, points)

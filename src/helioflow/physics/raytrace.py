@@ -62,6 +62,8 @@ class Optics:
         dni: direct normal irradiance (W/m^2).
         reflectivity: mirror reflectivity (1).
         transmittance: slant range (m) -> atmospheric transmittance; None = lossless.
+        mirror_mask: MirrorPoints -> the share of its power each surface point sends (soiling,
+            shading by a neighbour: an effect that acts as a mask on the mirror); None = all.
     """
 
     sun: SunShape
@@ -69,6 +71,27 @@ class Optics:
     dni: float = 1000.0
     reflectivity: float = 1.0
     transmittance: Callable[[Tensor], Tensor] | None = None
+    mirror_mask: Callable[[MirrorPoints], Tensor] | None = None
+
+
+@dataclass(frozen=True)
+class MirrorPoints:
+    """Where a mask on the mirror is evaluated (Optics.mirror_mask): tensors that broadcast against
+    each other over leading dimensions (..., 3), e.g. (S, P, 3) for S sun positions and P points.
+
+    Attributes:
+        local: the points in the heliostat frame (right, up, normal; m).
+        world: the points in ENU (m).
+        to_sun: unit vectors towards the sun's centre.
+        reflected: unit central reflected directions.
+        aim: (3,) the aim point (ENU, m).
+    """
+
+    local: Tensor
+    world: Tensor
+    to_sun: Tensor
+    reflected: Tensor
+    aim: Tensor
 
 
 @dataclass
@@ -95,6 +118,7 @@ def trace(
     chunk_rays: int = 2**19,
     aim_point: Tensor | None = None,
     with_launched: bool = False,
+    mirror_weight: Tensor | None = None,
 ) -> Tensor | tuple[Tensor, Tensor]:
     """Flux images of heliostats on a target, one per sun position.
 
@@ -113,6 +137,9 @@ def trace(
         with_launched: also return the (S,) power (W) reflected towards the target plane: the
             cells' power whose central ray meets the plane, wherever on it. The image holds what
             lands inside it; the rest is lost beside it.
+        mirror_weight: (P,) or (S, P) weight of each surface point's power (a mask on the mirror:
+            a region's own light, a shadow; one heliostat only), P = F * cells_per_side^2 in
+            `sample_surface`'s order (facet, row from the top, column from the left).
 
     Returns:
         (S, H, W) flux density (W/m^2), tent-averaged over pixels, differentiable in the
@@ -135,6 +162,9 @@ def trace(
         power = torch.zeros(len(s_sun), dtype=dtype, device=device)
         for heliostat, surface in zip(heliostats, samples):
             coeffs = _project(heliostat, surface, s_sun, target, aim, optics)
+            if mirror_weight is not None:
+                weight = mirror_weight if mirror_weight.dim() == 1 else mirror_weight[start : start + per_batch]
+                coeffs.power = coeffs.power * weight.to(coeffs.power)
             if with_launched:
                 towards = coeffs.along[:, :, 0, 0]
                 meets = (coeffs.offset[:, :, 0] / towards > 0) & (towards < 0)
@@ -155,19 +185,27 @@ def _sun_chunk(heliostats: Sequence[Heliostat], cells_per_side: int) -> int:
     return max(1, 2**24 // (25 * points))
 
 
+def mirror_points(heliostat: Heliostat, samples, sun: Tensor, aim: Tensor) -> tuple[MirrorPoints, Tensor, Tensor]:
+    """(the surface points as a mirror mask sees them, for the (S, 3) unit sun vectors: local (P, 3),
+    world (S, P, 3), to_sun (S, 1, 3), reflected (S, P, 3); the (S, 3, 3) orientations; the (S, P, 3)
+    world normals)."""
+    rot = orientation(heliostat, sun, aim)  # (S, 3, 3)
+    origin = heliostat.position + torch.einsum("sij,pj->spi", rot, samples.points)  # (S, P, 3)
+    n = torch.einsum("sij,pj->spi", rot, samples.normals)  # (S, P, 3)
+    return MirrorPoints(samples.points, origin, sun[:, None, :], reflect(-sun[:, None, :], n), aim), rot, n
+
+
 def _project(heliostat: Heliostat, samples, sun: Tensor, target: Target, aim: Tensor, optics: Optics) -> _Rays:
     """Coefficients of every (sun position, surface point) pair; see the module docstring."""
-    rot = orientation(heliostat, sun, aim)  # (S, 3, 3)
+    points, rot, n = mirror_points(heliostat, samples, sun, aim)
     dtype = rot.dtype
     centre, normal = target.center.to(dtype), target.normal.to(dtype)
     right, up = (a.to(dtype) for a in target.axes())
     frame = torch.stack((normal, right, up), dim=-1)  # (3, 3) columns = target normal, right, up
-    origin = heliostat.position + torch.einsum("sij,pj->spi", rot, samples.points)  # (S, P, 3)
-    n = torch.einsum("sij,pj->spi", rot, samples.normals)  # (S, P, 3)
+    origin, r0 = points.world, points.reflected
     half = torch.einsum("sij,pkj->spki", rot, samples.half_extent)  # (S, P, 2, 3)
     incoming = -sun[:, None, :]  # (S, 1, 3)
     cos_in = -(incoming * n).sum(-1)  # (S, P)
-    r0 = reflect(incoming, n)
     e1, e2 = plane_axes(sun)
     h1, h2 = reflect(e1[:, None, :], n), reflect(e2[:, None, :], n)
     t1 = normalize(half[:, :, 0] - (half[:, :, 0] * n).sum(-1, keepdim=True) * n)
@@ -183,6 +221,8 @@ def _project(heliostat: Heliostat, samples, sun: Tensor, target: Target, aim: Te
     power = optics.dni * optics.reflectivity * samples.area * cos_in.clamp_min(0.0)
     if optics.transmittance is not None:
         power = power * optics.transmittance((centre - heliostat.position).norm())
+    if optics.mirror_mask is not None:
+        power = power * optics.mirror_mask(points)
     return _Rays(along, offset, jitter, power)
 
 
@@ -360,10 +400,13 @@ def padded_canvas(target: Target) -> Target:
 def mean_rays(unit: Tensor, path: Tensor, power: Tensor, n_groups: int) -> tuple[Tensor, Tensor]:
     """The power-weighted mean ray of each group of points: unit (S, P, 3) central-ray directions on
     the target's (normal, right, up), path (S, P) lengths (m) and power (S, P) (W), the P points in
-    `n_groups` equal consecutive groups -> (S * n_groups, 3) unit directions, (S * n_groups,) paths."""
+    `n_groups` equal consecutive groups -> (S * n_groups, 3) unit directions, (S * n_groups,) paths.
+    A group without power (all its points masked or facing away) gets its points' plain mean."""
     n_sun = unit.shape[0]
     weight = power.reshape(n_sun, n_groups, -1)
-    weight = weight / weight.sum(-1, keepdim=True).clamp_min(1e-30)
+    dark = weight.sum(-1, keepdim=True) <= 0.0  # a group that sends nothing (masked): its plain mean ray
+    weight = torch.where(dark, torch.ones_like(weight), weight)
+    weight = weight / weight.sum(-1, keepdim=True)
     mean = (weight[..., None] * unit.reshape(n_sun, n_groups, -1, 3)).sum(2)
     mean_path = (weight * path.reshape(n_sun, n_groups, -1)).sum(-1)
     return normalize(mean).reshape(-1, 3), mean_path.reshape(-1)

@@ -35,6 +35,7 @@ import numpy as np
 import torch
 
 from helioflow.physics.heliostat import Heliostat, bspline_basis, facet_frames, orientation
+from helioflow.physics.raytrace import MirrorPoints
 from helioflow.physics.sun import sample_deviations
 from helioflow.physics.target import Target
 
@@ -77,7 +78,7 @@ def reference_trace(
         heliostat: the heliostat (any float dtype; evaluated in float64).
         target: the target plane and its pixel grid.
         azimuth_rad, elevation_rad: sun position (azimuth 0 = south, +pi/2 = east).
-        optics: raytrace.Optics (sun shape, slope error, dni, reflectivity, transmittance).
+        optics: raytrace.Optics (sun shape, slope error, dni, reflectivity, transmittance, mirror mask).
         n_rays: number of rays.
         seed: seeds both the numpy generator and the torch generator of the sun deviations.
         aim_point: (3,) ENU aim point; default the target's (Target.aim_point).
@@ -185,6 +186,10 @@ def reference_trace(
         col = (u + target.width / 2) / pw - 0.5
         row = (target.height / 2 - v) / ph - 0.5
         power = np.where(hit_ok, power_per_ray * cos_incidence, 0.0)
+        if optics.mirror_mask is not None:  # each ray's own point, incoming and reflected direction
+            mask = optics.mirror_mask(MirrorPoints(*(torch.as_tensor(a) for a in (point_h, point, to_sun, reflected)),
+                                                   aim))
+            power = power * mask.double().numpy()
         c0, r0 = np.floor(col), np.floor(row)
         fc, fr = col - c0, row - r0
         corners = ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc), (1, 0, fr * (1 - fc)), (1, 1, fr * fc))

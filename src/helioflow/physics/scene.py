@@ -14,8 +14,8 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor
 
-from helioflow.physics.effects import FIT, resolve
-from helioflow.physics.heliostat import Heliostat, without_planes
+from helioflow.physics.effects import FIT, TENSOR_EFFECTS, resolve
+from helioflow.physics.heliostat import Heliostat
 from helioflow.physics.linearised import LinearisedTrace, linearise
 from helioflow.physics.raytrace import trace
 from helioflow.physics.target import Target
@@ -41,8 +41,8 @@ class Scene:
     cells_per_side: int = 16
 
     def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,
-                 seed: int = 0, with_lost: bool = False,
-                 facets: Tensor | None = None) -> Tensor | tuple[Tensor, Tensor]:
+                 seed: int = 0, with_lost: bool = False, facets: Tensor | None = None,
+                 mirror_weight: Tensor | None = None) -> Tensor | tuple[Tensor, Tensor]:
         """(N,) sun positions (deg) -> (N, H, W) images (W/m^2) under `effects` (numbers only for
         scalars) with the heliostat tensors in `tensors` ({"tracking": (5,) mrad, "canting": (F, 2)
         mrad, "surface": (F, C, C) mm}, each optional; "fit" entries of `effects` are taken from
@@ -53,19 +53,21 @@ class Scene:
         camera's gain): a shape comparison counts it as misplaced (see `normalised`).
 
         facets: (K,) long: trace only these facets (the tensors are still the whole heliostat's),
-        with K / F of the rays; their images add up to the heliostat's."""
+        with K / F of the rays; their images add up to the heliostat's.
+
+        mirror_weight: (P,) or (N, P) weight of each surface point's power (physics.raytrace.trace;
+        the whole heliostat's points, not with `facets`)."""
         physics = self._physics(effects)
         h = physics.heliostat
         effective = effective_tensors(tensors)
-        fields = {"tracking": "tracking_error", "canting": "canting_error", "surface": "control_heights"}
-        h = replace(h, **{fields[k]: v * 1e-3 for k, v in effective.items()})
+        h = replace(h, **{TENSOR_EFFECTS[k].field: v * 1e-3 for k, v in effective.items()})
         rays = self.rays
         if facets is not None:
             h, rays = h.facets(facets), max(1, self.rays * len(facets) // h.n_facets)
         azimuth, elevation = torch.deg2rad(azimuth_deg), torch.deg2rad(elevation_deg)
         traced = trace(h, self.target, azimuth, elevation, physics.optics, rays=rays,
                        splat=self._splat(physics.optics), cells_per_side=self.cells_per_side, seed=seed,
-                       with_launched=with_lost)
+                       with_launched=with_lost, mirror_weight=mirror_weight)
         return photographed(physics, self.target, traced, with_lost)
 
     def _physics(self, effects: dict):
@@ -129,14 +131,9 @@ def photographed(physics, target: Target, traced: Tensor | tuple[Tensor, Tensor]
 
 
 def effective_tensors(tensors: dict[str, Tensor]) -> dict[str, Tensor]:
-    """Fit tensors as the heliostat takes them: canting without its mean, heights without planes."""
-    effective = {"tracking": lambda t: t, "canting": zero_mean, "surface": without_planes}
-    return {k: effective[k](v) for k, v in tensors.items()}
-
-
-def zero_mean(tilts: Tensor) -> Tensor:
-    """(F, 2) facet tilts without their mean: a common tilt is a tracking error, not canting."""
-    return tilts - tilts.mean(dim=0)
+    """Fit tensors as the heliostat takes them (each tensor effect's `effective`: canting without
+    its mean, heights without planes)."""
+    return {k: TENSOR_EFFECTS[k].effective(v) for k, v in tensors.items()}
 
 
 def dataset_scene(heliostat: Heliostat, attrs: dict, image_shape: tuple[int, int], cells_per_side: int,

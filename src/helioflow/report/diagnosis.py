@@ -1,5 +1,5 @@
 """The report's diagnosis and error-ledger sections, from diagnosis/<dataset>.json (rule
-`diagnose`) and its figures figures/diagnosis/<dataset>_{signatures,ranking,residuals,ledger}.png."""
+`diagnose`) and its figures figures/diagnosis/<dataset>_{signatures,ranking,residuals,location,ledger}.png."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ from helioflow.report.html import esc, figure, figures_by_name, fmt, nested_tabl
 
 FIGURES = (("signatures", "residual signatures against sun position"),
            ("ranking", "ranking of the missing effects"),
-           ("residuals", "residual images at the worst sun positions"))
+           ("residuals", "residual images at the worst sun positions"),
+           ("location", "where the remaining residual lives: sun position, spot, mirror"))
 
 
 def _fitted(params: dict) -> str:

@@ -1,0 +1,18 @@
+"""The mirror's reflectivity (soiling, ageing): a scale on the flux."""
+
+from __future__ import annotations
+
+from helioflow.physics.effects.base import FIT, Build, Effect, Parameter
+
+PARAMETERS = (Parameter("value", 0.95, 0.0, 1.0, role="scale", doc="mirror reflectivity (soiling)"),)
+
+
+def apply(build: Build, params: dict) -> None:
+    build.reflectivity = EFFECT.value(params, "value")
+
+
+EFFECT = Effect(
+    "reflectivity", 70, "ray power", PARAMETERS, False, "mirror reflectivity", apply,
+    tried_as={"value": FIT}, neutral={"value": 1.0},
+    missing_text="a lower mirror reflectivity", signature_text="the measured flux is {ratio:.3f} times the model's (a scale)",
+)
