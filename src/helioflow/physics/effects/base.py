@@ -6,8 +6,9 @@ hooks change (`Build`). See physics/effects/__init__.py for the registry and doc
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
+import torch
 from torch import Tensor
 
 from helioflow.physics.heliostat import Heliostat
@@ -179,3 +180,26 @@ class Effect:
             return []
         return [Variant(f"{self.name}: fit {', '.join(fixed)}", {**params, **dict.fromkeys(fixed, FIT)}, "free",
                         dict(params))]
+
+
+def zeroed(name: str) -> Callable[[Build], None]:
+    """An `absent` hook: the heliostat's own tensor `name` (a Heliostat field) set to zeros."""
+
+    def absent(build: Build) -> None:
+        build.heliostat = replace(build.heliostat, **{name: torch.zeros_like(getattr(build.heliostat, name))})
+
+    return absent
+
+
+def all_free(parameter: str, name: str) -> Callable[[dict, Heliostat], tuple[Tensor, Tensor] | None]:
+    """A TensorRole's `initial` for a tensor parameter that is "fit" or absent: zeros shaped like the
+    heliostat's field `name`, every entry free."""
+
+    def initial(params: dict, heliostat: Heliostat) -> tuple[Tensor, Tensor] | None:
+        if params.get(parameter) != FIT:
+            return None
+        like = getattr(heliostat, name)
+        return (torch.zeros(like.shape, device=like.device),
+                torch.ones(like.shape, dtype=torch.bool, device=like.device))
+
+    return initial

@@ -2,35 +2,18 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
-import torch
-
-from helioflow.physics.effects.base import FIT, Build, Effect, Parameter, TensorRole
-from helioflow.physics.heliostat import Heliostat, without_planes
+from helioflow.physics.effects.base import FIT, Effect, Parameter, TensorRole, all_free, zeroed
+from helioflow.physics.heliostat import without_planes
 
 PARAMETERS = (Parameter("control_heights_mm", None, -20.0, 20.0, role="tensor", array=True,
                         doc="(F, C, C) B-spline control-point heights"),)
 
 
-def absent(build: Build) -> None:
-    build.heliostat = replace(build.heliostat, control_heights=torch.zeros_like(build.heliostat.control_heights))
-
-
-def initial(params: dict, heliostat: Heliostat):
-    """(F, C, C) mm zeros, all free."""
-    if params.get("control_heights_mm") != FIT:
-        return None
-    device = heliostat.facet_size.device
-    return (torch.zeros(heliostat.control_heights.shape, device=device),
-            torch.ones(heliostat.control_heights.shape, dtype=torch.bool, device=device))
-
-
 EFFECT = Effect(
     "surface", 50, "mirror normals", PARAMETERS, True,
     "smooth deformation (B-spline control-point heights); unset: the heliostat's own",
-    apply=lambda build, params: None, absent=absent,
-    tensor=TensorRole("control_heights_mm", "control_heights", 0.002, initial, without_planes),
+    apply=lambda build, params: None, absent=zeroed("control_heights"),
+    tensor=TensorRole("control_heights_mm", "control_heights", 0.002, all_free("control_heights_mm", "control_heights"), without_planes),
     tried_as={"control_heights_mm": FIT}, neutral={"control_heights_mm": FIT},
     missing_text="a surface deformation (smooth mirror shape errors)",
     signature_text="the measured spot shapes differ from the model's in ways that change with the sun position",

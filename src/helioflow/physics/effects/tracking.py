@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import torch
 
-from helioflow.physics.effects.base import FIT, Build, Effect, Parameter, TensorRole
+from helioflow.physics.effects.base import FIT, Build, Effect, Parameter, TensorRole, zeroed
 from helioflow.physics.heliostat import TRACKING_PARAMETERS, Heliostat
 
 PARAMETERS = tuple(Parameter(f"{n}_mrad", None, -50.0, 50.0, role="tensor", doc=f"{n.replace('_', ' ')} (mrad)")
@@ -22,10 +22,6 @@ def apply(build: Build, params: dict) -> None:
     build.heliostat = replace(build.heliostat, tracking_error=error)
 
 
-def absent(build: Build) -> None:
-    build.heliostat = replace(build.heliostat, tracking_error=torch.zeros_like(build.heliostat.tracking_error))
-
-
 def initial(params: dict, heliostat: Heliostat):
     """(5,) mrad: given values, zeros where fitted; the fitted entries free."""
     if not any(params.get(p.name) == FIT for p in PARAMETERS):
@@ -38,7 +34,7 @@ def initial(params: dict, heliostat: Heliostat):
 
 EFFECT = Effect(
     "tracking", 30, "kinematics", PARAMETERS, True,
-    "kinematic errors; unset parameters take the heliostat's true values", apply, absent,
+    "kinematic errors; unset parameters take the heliostat's true values", apply, zeroed("tracking_error"),
     tensor=TensorRole("tracking", "tracking_error", 0.01, initial),
     tried_as={p.name: FIT for p in PARAMETERS}, neutral={p.name: 0.0 for p in PARAMETERS},
     missing_text="a tracking error (kinematic offsets of the heliostat's axes)",
