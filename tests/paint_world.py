@@ -295,15 +295,22 @@ def enu_to_wgs84(tower: Tower, enu: np.ndarray) -> list[float]:
 
 
 def write_paint_folder(folder: Path, world: World, n_images: int = 40, rays: int = 1_000_000,
-                       seed: int = 0) -> list[tuple[float, float]]:
+                       seed: int = 0, neighbour: str | None = None) -> list[tuple[float, float]]:
     """A PAINT folder (tower-measurements.json, AA39/heliostat-properties.json and, per image,
     <id>-calibration-properties.json and <id>-flux.png) of `n_images` calibrations under `world`;
-    returns their sun positions (azimuth, elevation deg)."""
+    returns their sun positions (azimuth, elevation deg). `neighbour`: a folder name under which the
+    world's neighbour is published (its heliostat-properties.json: AA39's, at the neighbour's
+    position), as PAINT lists every heliostat of the field; None: the neighbour stays unknown."""
     folder = Path(folder)
     (folder / HELIOSTAT).mkdir(parents=True, exist_ok=True)
     shutil.copy(PAINT / "tower-measurements.json", folder / "tower-measurements.json")
     shutil.copy(PAINT / HELIOSTAT / "heliostat-properties.json", folder / HELIOSTAT / "heliostat-properties.json")
     scene = Scene(world.target)
+    if neighbour is not None and world.neighbour_enu_m is not None:
+        props = json.loads((PAINT / HELIOSTAT / "heliostat-properties.json").read_text())
+        props["heliostat_position"] = enu_to_wgs84(scene.tower, scene.position + np.asarray(world.neighbour_enu_m))
+        (folder / neighbour).mkdir(exist_ok=True)
+        (folder / neighbour / "heliostat-properties.json").write_text(json.dumps(props))
     rng = np.random.default_rng(seed)
     suns = calibration_suns(n_images, seed)
     for i, (az, el) in enumerate(suns):

@@ -71,7 +71,7 @@ def test_revision_1_reports_an_unexplained_residual_and_where_it_lives(diagnosed
     places = mirror["regions"][:9]
     by_row = {row: np.mean([w for p, w in zip(places, mirror["pattern"]["affected"]) if p["row"] == row])
               for row in ("upper", "middle", "lower")}
-    assert by_row["lower"] < by_row["middle"] < by_row["upper"], by_row  # the lower part sends less light
+    assert by_row["lower"] < min(by_row["middle"], by_row["upper"]) - 0.05, by_row  # the lower part sends less
     assert "lower third of every facet" in mirror["where"], mirror["where"]
     thirds = [p["over_noise"] for p in first["location"]["sun_position"]["elevation_deg"]]
     assert min(thirds) > 0.5 * max(thirds), thirds  # at every sun position alike: not a low-sun effect

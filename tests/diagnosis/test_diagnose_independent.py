@@ -7,8 +7,10 @@ Each case hides effects of realistic size. A registry effect is named (chosen, o
 partner of a chosen change, with the measurement that separates them), fitting the named changes
 cuts the held-out error by at least half, and what remains is explained down to the noise.
 Nothing hidden raises no alarm, and its noise floor is within a factor 1.5 of its held-out error.
-An effect outside the registry (a neighbour shading the mirror at low sun) leaves a residual at
-least twice the noise, and the diagnosis says where it lives: low sun, the lower part of the mirror.
+An effect outside the registry (a neighbour shading the mirror at low sun, its position unknown)
+leaves a residual at least twice the noise, and the diagnosis says where it lives: low sun, the
+lower part of the mirror; with the neighbour's folder in the PAINT directory, the same shading is a
+candidate (neighbour_shading), named, and explains the residual down to the noise.
 """
 
 import numpy as np
@@ -41,7 +43,9 @@ CASES = {  # name: (world, the registry effects the diagnosis must name; None: a
     "canting + camera": (World(canting_mrad=_tilts[1] - _tilts[1].mean(0), camera=(0.03, 1.5)),
                          {"canting", "camera"}),
     "neighbour shading": (World(neighbour_enu_m=(0.0, -3.5, 0.0)), None),  # 3.5 m south: shades at low sun
+    "neighbour shading, position known": (World(neighbour_enu_m=(0.0, -3.5, 0.0)), {"neighbour_shading"}),
 }
+PUBLISHED = {"neighbour shading, position known"}  # the neighbour's folder is in the PAINT directory
 
 
 @pytest.fixture(scope="module")
@@ -51,8 +55,9 @@ def diagnosed(tmp_path_factory):
 
     def run(case: str) -> dict:
         if case not in done:
-            folder = root / case.replace(" ", "_").replace("+", "and")
-            write_paint_folder(folder, CASES[case][0], n_images=N_IMAGES, rays=RAYS, seed=1)
+            folder = root / case.replace(" ", "_").replace("+", "and").replace(",", "")
+            write_paint_folder(folder, CASES[case][0], n_images=N_IMAGES, rays=RAYS, seed=1,
+                               neighbour="AA40" if case in PUBLISHED else None)
             ids = [str(100_000 + i) for i in range(N_IMAGES)]
             held = list(np.random.default_rng(0).choice(ids, HELD_OUT, replace=False))
             import_paint(folder, "AA39", folder / "data.h5", folder / "aa39.h5", holdout=held, dataset=case)

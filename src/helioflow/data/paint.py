@@ -440,6 +440,28 @@ def split_labels(measurements: list[Measurement], holdout: list[str] | dict, fol
     return np.array([label(m) for m in measurements])
 
 
+NEIGHBOUR_RADIUS_M = 30.0  # heliostats whose pivots lie this close (horizontally) can shade or block each other
+
+
+def neighbour_positions(paint_dir: Path, tower: Tower, heliostat: str, position: np.ndarray,
+                        radius_m: float = NEIGHBOUR_RADIUS_M) -> list[list[float]]:
+    """ENU pivots (m) of the other heliostats of a PAINT directory within `radius_m` (horizontal) of
+    `position`: the folders beside the heliostat's with a heliostat-properties.json. A neighbour's
+    unreadable file is skipped with a warning (it is not this import's input)."""
+    out = []
+    for path in sorted(Path(paint_dir).glob(f"*/{PROPERTIES_FILE}")):
+        if path.parent.name == heliostat:
+            continue
+        try:
+            pivot = tower.enu(field(read_json(path), path, "heliostat_position", "vec3"))
+        except DataError as exc:
+            log.warning("neighbour skipped: %s", exc)
+            continue
+        if math.hypot(*(np.asarray(pivot) - np.asarray(position))[:2]) <= radius_m:
+            out.append([round(float(x), 4) for x in pivot])
+    return out
+
+
 def import_paint(
     paint_dir: str | os.PathLike,
     heliostat: str,
@@ -483,6 +505,7 @@ def import_paint(
         spec = {"paint_dir": str(paint_dir), "targets": targets, "dni_w_m2": float(dni_w_m2)}
         ds = build_dataset(measurements, tower, geometry, tuple(resolution), holdout, folder,
                            dataset or heliostat, heliostat, spec)
+        ds.attrs["neighbours_enu_m"] = neighbour_positions(paint_dir, tower, heliostat, geometry.position.numpy())
     write_imported(dataset_path, ds, heliostat_path, geometry, source=source)
     return ds
 

@@ -43,16 +43,17 @@ class Candidate:
     neutral: dict | None
 
 
-def candidates(effects: dict, n_facets: int) -> tuple[list[Candidate], list[dict]]:
+def candidates(effects: dict, n_facets: int, known: frozenset = frozenset()) -> tuple[list[Candidate], list[dict]]:
     """(candidates to try, {effect, reason} not tried) for a model effect list and heliostat: every
     registry effect the model lacks, as its module says it is tried (`Effect.tried_as`), and the
-    changes of those it has (`Effect.changed`)."""
+    changes of those it has (`Effect.changed`). `known`: the facts the dataset holds that some
+    effects need (`Effect.needs`, e.g. "neighbours")."""
     tried, skipped = [], []
     for name, effect in REGISTRY.items():
         present = name in effects
-        if effect.not_applicable:
+        if effect.not_applicable or (effect.needs and effect.needs[0] not in known):
             if not present:
-                skipped.append({"effect": name, "reason": effect.not_applicable})
+                skipped.append({"effect": name, "reason": effect.not_applicable or effect.needs[1]})
         elif n_facets < effect.min_facets[0]:
             if not present:
                 skipped.append({"effect": name, "reason": effect.min_facets[1]})

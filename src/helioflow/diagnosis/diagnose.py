@@ -126,7 +126,8 @@ class Diagnosis:
         self.scene, self.effects, self.train, self.heldout = scene, effects, train, heldout
         self.max_effects = max_effects
         self.settings = FitSettings(**{**vars(settings), "loss": "shape"})
-        self.tried, self.skipped = candidates(effects, scene.heliostat.n_facets)
+        known = frozenset({"neighbours"} if scene.neighbours is not None else ())
+        self.tried, self.skipped = candidates(effects, scene.heliostat.n_facets, known)
         self.candidate = {c.label: c for c in self.tried}
         self.fits: dict[frozenset, tuple[float, FitResult]] = {}
         self.noise = measure_noise(torch.cat((train.images, heldout.images)))

@@ -175,7 +175,7 @@ def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: 
                     control_heights=base["surface"] * 1e-3)
     points = mirror_points(moved, sample_surface(moved, g), sun, t64.aim_point)[0]
     points = MirrorPoints(*(back(x) for x in (points.local, points.world, points.to_sun, points.reflected,
-                                                points.aim)))
+                                                points.aim, points.sun)))
     return LinearisedTrace(back(hits), derivatives, back(h.facet_size), g, back(power), back(mean_unit),
                            back(mean_path), float((target.center - heliostat.position).norm()),
                            {k: back(v) for k, v in at.items()}, target, points)

@@ -82,9 +82,11 @@ class MirrorPoints:
     Attributes:
         local: the points in the heliostat frame (right, up, normal; m).
         world: the points in ENU (m).
-        to_sun: unit vectors towards the sun's centre.
-        reflected: unit central reflected directions.
+        to_sun: unit vectors towards the sun (the sun's centre, or a ray's own direction).
+        reflected: unit reflected directions (central, or a ray's own).
         aim: (3,) the aim point (ENU, m).
+        sun: (S', 3) unit vectors towards the sun's centre, one per sun position; `world` reshapes
+            to (S', ..., 3) along them (S' = S for the fast tracers, 1 for the reference's one sun).
     """
 
     local: Tensor
@@ -92,6 +94,7 @@ class MirrorPoints:
     to_sun: Tensor
     reflected: Tensor
     aim: Tensor
+    sun: Tensor
 
 
 @dataclass
@@ -192,7 +195,7 @@ def mirror_points(heliostat: Heliostat, samples, sun: Tensor, aim: Tensor) -> tu
     rot = orientation(heliostat, sun, aim)  # (S, 3, 3)
     origin = heliostat.position + torch.einsum("sij,pj->spi", rot, samples.points)  # (S, P, 3)
     n = torch.einsum("sij,pj->spi", rot, samples.normals)  # (S, P, 3)
-    return MirrorPoints(samples.points, origin, sun[:, None, :], reflect(-sun[:, None, :], n), aim), rot, n
+    return MirrorPoints(samples.points, origin, sun[:, None, :], reflect(-sun[:, None, :], n), aim, sun), rot, n
 
 
 def _project(heliostat: Heliostat, samples, sun: Tensor, target: Target, aim: Tensor, optics: Optics) -> _Rays:

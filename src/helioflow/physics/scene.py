@@ -31,6 +31,8 @@ class Scene:
         dni: direct normal irradiance (W/m^2).
         splat, rays, cells_per_side: trace settings (see physics.raytrace.trace); a point sun
             without slope error has no beam-spread kernel and is traced with `rays` bilinear rays.
+        neighbours: (K, 3) ENU pivots of the neighbouring heliostats (same design), where known
+            (effect neighbour_shading); None: unknown.
     """
 
     heliostat: Heliostat
@@ -39,6 +41,7 @@ class Scene:
     splat: str = "kernel"
     rays: int = 200_000
     cells_per_side: int = 16
+    neighbours: Tensor | None = None
 
     def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,
                  seed: int = 0, with_lost: bool = False, facets: Tensor | None = None,
@@ -73,7 +76,7 @@ class Scene:
     def _physics(self, effects: dict):
         """The effects (their "fit" entries dropped) resolved on the design heliostat."""
         scalars = {e: {k: v for k, v in (p or {}).items() if v != FIT} for e, p in effects.items()}
-        return resolve(scalars, self.heliostat, self.dni)
+        return resolve(scalars, self.heliostat, self.dni, self.neighbours)
 
     def _splat(self, optics) -> str:
         """A point sun without slope error has no beam-spread kernel: it is traced with rays."""
@@ -139,7 +142,8 @@ def effective_tensors(tensors: dict[str, Tensor]) -> dict[str, Tensor]:
 def dataset_scene(heliostat: Heliostat, attrs: dict, image_shape: tuple[int, int], cells_per_side: int,
                   fit_rays: int, fitting: bool) -> Scene:
     """The scene of a dataset (its attributes: target_center_m, target_normal, target_size_m,
-    dni_w_m2, trace, and aim_point_m where the heliostat aims elsewhere than the target centre).
+    dni_w_m2, trace, aim_point_m where the heliostat aims elsewhere than the target centre, and
+    neighbours_enu_m where the neighbours' positions are known).
 
     Fitting a dataset traced with bilinear rays: `fit_rays` bilinear rays per image on
     `cells_per_side` cells (faster than kernels for many facets). Otherwise, and for predictions,
@@ -156,11 +160,14 @@ def dataset_scene(heliostat: Heliostat, attrs: dict, image_shape: tuple[int, int
                     None if aim is None else torch.tensor(aim, dtype=torch.float32, device=device))
     trace_settings = attrs.get("trace") or {}
     dni = float(attrs["dni_w_m2"])
+    known = attrs.get("neighbours_enu_m")
+    neighbours = None if known is None else torch.tensor(known, dtype=torch.float32, device=device).reshape(-1, 3)
     if fitting and trace_settings.get("splat") == "bilinear":
-        return Scene(heliostat, target, dni, splat="bilinear", rays=fit_rays, cells_per_side=cells_per_side)
+        return Scene(heliostat, target, dni, splat="bilinear", rays=fit_rays, cells_per_side=cells_per_side,
+                     neighbours=neighbours)
     cells = max(cells_per_side, int(trace_settings.get("cells_per_side") or cells_per_side))
     rays = fit_rays if fitting else int(trace_settings.get("rays") or fit_rays)
-    return Scene(heliostat, target, dni, rays=rays, cells_per_side=cells)
+    return Scene(heliostat, target, dni, rays=rays, cells_per_side=cells, neighbours=neighbours)
 
 
 def normalised(images: Tensor, loss: str, scale: float, lost: Tensor | None = None) -> Tensor:

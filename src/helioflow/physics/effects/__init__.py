@@ -23,6 +23,8 @@ import importlib
 from dataclasses import dataclass
 from pathlib import Path
 
+from torch import Tensor
+
 from helioflow.errors import ConfigError
 from helioflow.physics.effects.attenuation import vittitoe_biggs
 from helioflow.physics.effects.base import FIT, Build, Effect, Parameter
@@ -121,7 +123,7 @@ class Physics:
     blocking_shading: bool = False
 
 
-def resolve(effects: dict, heliostat: Heliostat, dni: float) -> Physics:
+def resolve(effects: dict, heliostat: Heliostat, dni: float, neighbours: Tensor | None = None) -> Physics:
     """Turn an effect list (no 'fit' values) into optics, the effective heliostat and the camera:
     every registry effect's `apply` hook when the list has it, its `absent` hook otherwise.
 
@@ -129,9 +131,10 @@ def resolve(effects: dict, heliostat: Heliostat, dni: float) -> Physics:
         effects: {effect name: {parameter: value}} as in config.
         heliostat: the heliostat's geometry (true values for tracking, canting, surface).
         dni: direct normal irradiance (W/m^2).
+        neighbours: (K, 3) ENU pivots of the neighbouring heliostats where known (None: unknown).
     """
     check_effects(effects, "effects", allow_fit=False)
-    build = Build(heliostat, dni)
+    build = Build(heliostat, dni, neighbours)
     for name, effect in REGISTRY.items():
         if name in (effects or {}):
             effect.apply(build, dict(effects[name] or {}))

@@ -59,6 +59,7 @@ class Build:
 
     heliostat: Heliostat
     dni: float
+    neighbours: Tensor | None = None  # (K, 3) ENU pivots of the neighbouring heliostats, where known
     sun: SunShape = field(default_factory=lambda: SunShape("point"))
     slope_error: float = 0.0  # rad
     reflectivity: float = 1.0
@@ -132,6 +133,8 @@ class Effect:
             where fitted); None: never added (`not_applicable` says why).
         neutral: its parameters at which it does nothing (the start of a nested fit; None: none).
         not_applicable: why the diagnosis cannot try it (empty: it can).
+        needs: (a fact of the dataset, why the diagnosis cannot try it without): e.g. ("neighbours",
+            "the neighbours' positions are not known"); the diagnosis tries it where the fact is known.
         min_facets: (fewest facets, why) for an effect a heliostat with fewer facets cannot show.
         variants: (params) -> [Variant]: how the diagnosis changes it when the model has it;
             default: its fixed fittable scalars freed.
@@ -156,6 +159,7 @@ class Effect:
     tried_as: dict | None = None
     neutral: dict | None = None
     not_applicable: str = ""
+    needs: tuple[str, str] | None = None
     min_facets: tuple[int, str] = (1, "")
     variants: Callable[[dict], list[Variant]] | None = None
     missing_text: str = ""
