@@ -46,6 +46,18 @@ def _terms(d: dict) -> str:
             f"A reduction counts from: {esc(threshold)}.</p>")
 
 
+def _remaining(d: dict) -> str:
+    """What remains after the chosen changes, against the noise floor (empty for an older JSON)."""
+    r = d.get("remaining")
+    if not isinstance(r, dict) or d.get("noise_floor") is None:
+        return ""
+    changes = ", ".join(r.get("changes") or []) or "none"
+    state = "explained down to the noise" if r.get("explained") else "<strong>not explained</strong>"
+    return (f"<p>Noise floor (misplaced flux that noise alone leaves): {fmt(d['noise_floor'])}. After the chosen "
+            f"changes ({esc(changes)}): {fmt(r.get('error'))}, {fmt(r.get('over_noise'))} times the floor: {state}. "
+            f"{esc(d.get('remaining_note', ''))}</p>")
+
+
 def _ranking(d: dict) -> str:
     rows = [[i + 1, r.get("effect"), _fitted(r.get("fitted")), r.get("heldout_error_before"),
              r.get("heldout_error_after"), _pct(r.get("relative_reduction")), r.get("identifiable")]
@@ -61,7 +73,7 @@ def diagnosis_section(files: dict[str, list[str]]) -> str:
         d = read_diagnosis(path)
         name = d["dataset"]
         parts += [f"<h3>{esc(name)}</h3>", f'<p class="verdict">{esc(d.get("verdict", ""))}</p>',
-                  _terms(d), "<h4>Missing effects, best first</h4>", _ranking(d)]
+                  _terms(d), _remaining(d), "<h4>Missing effects, best first</h4>", _ranking(d)]
         if d.get("not_tested"):
             rows = [[t.get("effect"), t.get("reason")] for t in d["not_tested"]]
             parts += ["<h4>Not tested</h4>", table(["effect", "reason"], rows)]
