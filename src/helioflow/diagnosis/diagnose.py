@@ -554,7 +554,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
         "noise_floor": remaining["noise_floor"],
         "noise": {"method": NOISE_METHOD, "model": diagnosis.noise.as_json()},
         "remaining": {k: remaining[k] for k in ("changes", "error", "over_noise", "explained")},
-        "remaining_note": (f"the images hold almost no noise: what remains is compared with the diagnosis' numerical floor "
+        "remaining_note": (f"The images hold almost no noise: what remains is compared with the diagnosis' numerical floor "
                            f"({NUMERICAL_FLOOR})" if remaining["noise_floor"] < NUMERICAL_FLOOR else ""),
         "model_fitted": _summarised(model.fitted_values()),
         "ranking": ranking,
