@@ -126,7 +126,7 @@ class Diagnosis:
         self.scene, self.effects, self.train, self.heldout = scene, effects, train, heldout
         self.max_effects = max_effects
         self.settings = FitSettings(**{**vars(settings), "loss": "shape"})
-        known = frozenset({"neighbours"} if scene.neighbours is not None else ())
+        known = frozenset({"neighbours"} if scene.neighbours is not None and len(scene.neighbours) else ())
         self.tried, self.skipped = candidates(effects, scene.heliostat.n_facets, known)
         self.candidate = {c.label: c for c in self.tried}
         self.fits: dict[frozenset, tuple[float, FitResult]] = {}

@@ -67,7 +67,8 @@ def apply(build: Build, params: dict) -> None:
 EFFECT = Effect(
     "neighbour_shading", 78, "mirror mask", (), True,
     "shading and blocking by neighbouring heliostats of known position, in calibration images", apply,
-    tried_as={}, needs=("neighbours", "the neighbours' positions are not known for this dataset"),
+    tried_as={}, needs=("neighbours", "no neighbour is known within 30 m (a PAINT import lists the other heliostats' "
+                                     "folders of its directory)"),
     missing_text="shading and blocking by its neighbours (their positions are known)",
     signature_text="the measured spots lose flux on one side at some sun positions only",
     separated_from={"soiling": "images at high sun (no shading there), or after a cleaning",
