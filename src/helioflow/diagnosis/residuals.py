@@ -93,29 +93,45 @@ def on_mirror(scene: Scene, effects: dict, tensors: dict, azimuth_deg: Tensor, e
     h = scene.heliostat
     cells = scene.cells_per_side
     band = torch.arange(cells) * regions // cells  # region row / column of each cell row / column
-    layout, images = [], []
+    place = (band[:, None] * regions + band[None, :]).to(h.facet_size.device)  # (cells, cells) part of a facet
+
+    def weight_of(values: Tensor) -> Tensor:
+        return values.to(h.facet_size.dtype).flatten()
+
+    def light(weight: Tensor, index: Tensor) -> Tensor:
+        """(n, H, W) the light of the weighted points at the images `index`, the camera's background off."""
+        with torch.no_grad():
+            image = scene.simulate(effects, tensors, azimuth_deg[index], elevation_deg[index], mirror_weight=weight)
+        return image.double().cpu() - background[index.cpu()]
+
+    every = torch.arange(len(measured), device=azimuth_deg.device)
     with torch.no_grad():
-        dark = torch.zeros(h.n_facets * cells * cells, dtype=h.facet_size.dtype, device=h.facet_size.device)
-        background = scene.simulate(effects, tensors, azimuth_deg, elevation_deg, mirror_weight=dark).double().cpu()
-        for f in range(h.n_facets):
-            for i in range(regions):
-                for j in range(regions):
-                    mask = torch.zeros(h.n_facets, cells, cells, dtype=h.facet_size.dtype, device=h.facet_size.device)
-                    mask[f] = ((band[:, None] == i) & (band[None, :] == j)).to(mask)
-                    images.append(scene.simulate(effects, tensors, azimuth_deg, elevation_deg,
-                                                 mirror_weight=mask.flatten()).double().cpu() - background)
-                    layout.append(_region(h, f, i, j, regions))
-    parts = torch.stack(images, 1)  # (N, F * R * R, H, W): each region's light, the camera's background taken off
+        background = scene.simulate(effects, tensors, azimuth_deg, elevation_deg,
+                                    mirror_weight=weight_of(torch.zeros(h.n_facets, cells, cells))).double().cpu()
+    parts = torch.stack([light(weight_of((place == k).expand(h.n_facets, -1, -1)), every)
+                         for k in range(regions * regions)], 1)  # (N, R * R, H, W): each part of every facet
     total = (parts.sum(1) + background).sum((-2, -1)).clamp_min(1e-30)[:, None, None]  # (N, 1, 1) the model's sum
-    parts = parts / total[:, None]
     meas = measured.double().cpu()
     meas = meas / meas.sum((-2, -1), keepdim=True).clamp_min(1e-30) - background / total  # the light to place
     affected = np.asarray(affected, bool)
+    layout = [_region(h, f, i, j, regions) for f in range(h.n_facets) for i in range(regions) for j in range(regions)]
     out = {"regions": layout, "pattern": {}, "facets": {}, "weight": {}, "affected_images": int(affected.sum())}
     if not affected.any():
         affected = np.ones(len(meas), bool)
     for name, select in (("affected", affected), ("others", ~affected)):
-        pattern, facets = _separable(parts, meas, select, h.n_facets)
+        pattern, facets = np.ones(regions * regions), np.ones(h.n_facets)
+        chosen = np.flatnonzero(select)
+        if len(chosen):
+            index = torch.as_tensor(chosen)
+            b = meas[index].reshape(-1).numpy()
+            pattern = _weights((parts[index] / total[index, None]).movedim(1, -1).reshape(-1, regions * regions).numpy(), b)
+            placed = torch.as_tensor(pattern, dtype=h.facet_size.dtype, device=place.device)[place]  # (cells, cells)
+            by_facet = []
+            for f in range(h.n_facets):  # each facet, its parts weighted as found
+                mask = torch.zeros(h.n_facets, cells, cells, dtype=h.facet_size.dtype, device=place.device)
+                mask[f] = placed
+                by_facet.append(light(weight_of(mask), index.to(azimuth_deg.device)) / total[index])
+            facets = _weights(torch.stack(by_facet, -1).reshape(-1, h.n_facets).numpy(), b)
         out["pattern"][name] = np.round(pattern, 3).tolist()
         out["facets"][name] = np.round(facets, 3).tolist()
         out["weight"][name] = np.round(np.outer(facets, pattern).flatten(), 3).tolist()
@@ -131,21 +147,6 @@ def _region(h, facet: int, row: int, col: int, regions: int) -> dict:
             "right_m": round(centre[0] + (col + 0.5 - regions / 2) * width / regions, 4),
             "up_m": round(centre[1] - (row + 0.5 - regions / 2) * height / regions, 4),
             "width_m": round(width / regions, 4), "height_m": round(height / regions, 4)}
-
-
-def _separable(parts: Tensor, meas: Tensor, select: np.ndarray, n_facets: int) -> tuple[np.ndarray, np.ndarray]:
-    """((R * R,) place weights, (F,) facet weights) that make the images of `select` match: the
-    places first (every facet's part summed), then the facets with the places' weights applied."""
-    index = torch.as_tensor(np.flatnonzero(select))
-    places = parts.shape[1] // n_facets
-    if not len(index):
-        return np.ones(places), np.ones(n_facets)
-    chosen = parts[index].reshape(len(index), n_facets, places, *parts.shape[-2:])
-    b = meas[index].reshape(-1).numpy()
-    pattern = _weights(chosen.sum(1).movedim(1, -1).reshape(-1, places).numpy(), b)
-    by_facet = (chosen * torch.as_tensor(pattern)[None, None, :, None, None]).sum(2)
-    facets = _weights(by_facet.movedim(1, -1).reshape(-1, n_facets).numpy(), b)
-    return pattern, facets
 
 
 def _weights(a: np.ndarray, b: np.ndarray) -> np.ndarray:
