@@ -80,6 +80,7 @@ NUMERICAL_FLOOR = 0.001  # misplaced flux below which a noise floor is not resol
 PARTLY = 0.1  # a best candidate that cuts an unexplained residual by this much is named as explaining part of it
 SWAP_NOISE = 0.5  # swapping a chosen change for another that ends within this fraction of the noise floor: alike
 
+
 def model_hash(effects: dict) -> str:
     """Short hash of a model effect list's content: the ledger's key for a model revision."""
     return hashlib.sha256(json.dumps(effects, sort_keys=True).encode()).hexdigest()[:10]
@@ -131,7 +132,7 @@ class Diagnosis:
         self.candidate = {c.label: c for c in self.tried}
         self.fits: dict[frozenset, tuple[float, FitResult]] = {}
         self.noise = measure_noise(torch.cat((train.images, heldout.images)))
-        self.floors: dict[frozenset, float] = {}
+        self.floors: dict[frozenset, tuple[float, float]] = {}
 
     def effects_with(self, labels) -> dict:
         """The model's effect list with the candidates `labels` applied."""
@@ -189,13 +190,18 @@ class Diagnosis:
     def floor(self, labels) -> float:
         """The held-out error that noise alone would leave if the model with the candidates `labels`
         were the truth (diagnosis/noise.py: its held-out images re-noised like the measurements)."""
+        return self._floor(labels)[0]
+
+    def _floor(self, labels) -> tuple[float, float]:
+        """(that floor, the standard error of its bootstrap)."""
         key = frozenset(labels)
         if key not in self.floors:
             result = self.fitted(key)[1]
             with torch.no_grad():
                 pred = self.scene.simulate(result.effects, result.tensors, self.heldout.azimuth_deg,
                                            self.heldout.elevation_deg)
-            self.floors[key] = float(noise_floor(pred, self.heldout.images, self.noise)[0].mean())
+            per_image, standard_error = noise_floor(pred, self.heldout.images, self.noise)
+            self.floors[key] = (float(per_image.mean()), standard_error)
         return self.floors[key]
 
     def remaining(self, labels) -> dict:
@@ -203,10 +209,10 @@ class Diagnosis:
         and whether it is explained down to the noise (within EXPLAINED times the floor). The ratio
         is taken to at least NUMERICAL_FLOOR: on noise-free images (a synthetic dataset) the
         diagnosis' own fits, at their settings, cannot claim less."""
-        error, floor = self.error(labels), self.floor(labels)
+        error, (floor, standard_error) = self.error(labels), self._floor(labels)
         ratio = error / max(floor, NUMERICAL_FLOOR)
-        return {"changes": list(labels), "error": error, "noise_floor": floor, "over_noise": ratio,
-                "explained": bool(ratio <= EXPLAINED), "against": max(floor, NUMERICAL_FLOOR)}
+        return {"changes": list(labels), "error": error, "noise_floor": floor,
+                "noise_floor_standard_error": standard_error, "over_noise": ratio, "explained": bool(ratio <= EXPLAINED)}
 
     def select(self) -> list[str]:
         """The candidates the measurements need (best subset, module doc), in the order a forward
@@ -524,8 +530,10 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     with torch.no_grad():
         pred, lost = fit_scene.simulate(model.effects, model.tensors, *sun, with_lost=True)
         pred, lost = pred.cpu() / scale, lost.cpu() / scale
-        last, last_lost = fit_scene.simulate(final.effects, final.tensors, *sun, with_lost=True)
-        last, last_lost = last.cpu() / scale, last_lost.cpu() / scale
+        last, last_lost = pred, lost  # the final model is the model when nothing is chosen
+        if chosen:
+            last, last_lost = fit_scene.simulate(final.effects, final.tensors, *sun, with_lost=True)
+            last, last_lost = last.cpu() / scale, last_lost.cpu() / scale
     slant = float(np.linalg.norm(np.subtract(ds.attrs["target_center_m"], heliostat.position.cpu().numpy())))
     sig = signatures(fit_scene, pred, everything.images, slant)
     summary = summarise(sig)
@@ -552,6 +560,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
         "heldout_error": before,
         "heldout": heldout,
         "noise_floor": remaining["noise_floor"],
+        "noise_floor_standard_error": remaining["noise_floor_standard_error"],
         "noise": {"method": NOISE_METHOD, "model": diagnosis.noise.as_json()},
         "remaining": {k: remaining[k] for k in ("changes", "error", "over_noise", "explained")},
         "remaining_note": (f"The images hold almost no noise: what remains is compared with the diagnosis' numerical floor "

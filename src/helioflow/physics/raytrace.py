@@ -140,8 +140,8 @@ def trace(
         with_launched: also return the (S,) power (W) reflected towards the target plane: the
             cells' power whose central ray meets the plane, wherever on it. The image holds what
             lands inside it; the rest is lost beside it.
-        mirror_weight: (P,) or (S, P) weight of each surface point's power (a mask on the mirror:
-            a region's own light, a shadow; one heliostat only), P = F * cells_per_side^2 in
+        mirror_weight: (P,) weight of each surface point's power, on top of the optics' own mirror
+            mask (one heliostat only; e.g. one region's light), P = F * cells_per_side^2 in
             `sample_surface`'s order (facet, row from the top, column from the left).
 
     Returns:
@@ -157,6 +157,8 @@ def trace(
     sun = sun_vector(azimuth.to(dtype=dtype, device=device), elevation.to(dtype=dtype, device=device))
     generator = torch.Generator(device="cpu").manual_seed(seed)
     images, launched = [], []
+    if mirror_weight is not None:
+        optics = replace(optics, mirror_mask=weighted(optics.mirror_mask, mirror_weight))
     samples = [sample_surface(h, cells_per_side) for h in heliostats]  # once, not per sun batch
     per_batch = _sun_chunk(heliostats, cells_per_side)
     for start in range(0, len(sun), per_batch):
@@ -165,9 +167,6 @@ def trace(
         power = torch.zeros(len(s_sun), dtype=dtype, device=device)
         for heliostat, surface in zip(heliostats, samples):
             coeffs = _project(heliostat, surface, s_sun, target, aim, optics)
-            if mirror_weight is not None:
-                weight = mirror_weight if mirror_weight.dim() == 1 else mirror_weight[start : start + per_batch]
-                coeffs.power = coeffs.power * weight.to(coeffs.power)
             if with_launched:
                 towards = coeffs.along[:, :, 0, 0]
                 meets = (coeffs.offset[:, :, 0] / towards > 0) & (towards < 0)
@@ -186,6 +185,16 @@ def _sun_chunk(heliostats: Sequence[Heliostat], cells_per_side: int) -> int:
     """Sun positions per batch so that the (S, P, 25) coefficient tensors stay below ~64 MB."""
     points = heliostats[0].n_facets * cells_per_side**2
     return max(1, 2**24 // (25 * points))
+
+
+def weighted(mask: Callable[[MirrorPoints], Tensor] | None, weight: Tensor) -> Callable[[MirrorPoints], Tensor]:
+    """The mirror mask `mask` (None: none) times a fixed (P,) weight of the surface points."""
+
+    def masked(points: MirrorPoints) -> Tensor:
+        w = weight.to(points.world)
+        return w if mask is None else mask(points) * w
+
+    return masked
 
 
 def mirror_points(heliostat: Heliostat, samples, sun: Tensor, aim: Tensor) -> tuple[MirrorPoints, Tensor, Tensor]:

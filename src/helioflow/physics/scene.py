@@ -58,8 +58,8 @@ class Scene:
         facets: (K,) long: trace only these facets (the tensors are still the whole heliostat's),
         with K / F of the rays; their images add up to the heliostat's.
 
-        mirror_weight: (P,) or (N, P) weight of each surface point's power (physics.raytrace.trace;
-        the whole heliostat's points, not with `facets`)."""
+        mirror_weight: (P,) weight of each surface point's power (physics.raytrace.trace; the whole
+        heliostat's points, not with `facets`)."""
         physics = self._physics(effects)
         h = physics.heliostat
         effective = effective_tensors(tensors)
