@@ -49,6 +49,15 @@ def cmd_recovery(args) -> None:
         write_recovery(args.model, args.heliostat, args.dataset, args.output, args.device)
 
 
+def cmd_plan_measurements(args) -> None:
+    from helioflow.models.planning import plan_measurements
+
+    spec = _spec(args, workflow.plan_params)  # --name: the dataset's name in the config
+    result = plan_measurements(args.model, args.dataset, spec["settings"], args.output, spec.get("device", "cpu"))
+    if args.output is None:
+        print(json.dumps(result, indent=1))
+
+
 def cmd_surfaces(args) -> None:
     from helioflow.data.surfaces import HeliostatSpec, true_heliostat, write_heliostat
 
@@ -343,6 +352,14 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--output", help="recovery/<dataset>.json (default: print the JSON)")
     p.add_argument("--device", default="cpu", choices=("cpu", "cuda", "auto"), help="where the model predicts")
     p.set_defaults(func=cmd_recovery)
+
+    p = sub.add_parser("plan-measurements", help="the next calibration images to take: the sun positions that "
+                                                 "shrink a fitted physics model's uncertainty most")
+    p.add_argument("--model", required=True, help="models/<dataset>/drt.pt (or raytrace.pt)")
+    p.add_argument("--dataset", required=True, help="datasets/<dataset>.h5 (its site, where it records one)")
+    p.add_argument("--output", help="plan/<dataset>.json (default: print the JSON)")
+    _with_spec(p)
+    p.set_defaults(func=cmd_plan_measurements)
 
     p = sub.add_parser("report", help="the self-contained HTML report of an experiment")
     p.add_argument("--inputs", required=True,

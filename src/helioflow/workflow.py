@@ -343,6 +343,24 @@ def diagnose_params(config: dict, dataset: str) -> dict:
             "device": config["device"]}
 
 
+PLAN_DEFAULTS = {"images": 8, "criterion": "d_optimal", "days": 7.0, "every_minutes": 30.0, "min_elevation_deg": 10.0}
+
+
+def plan_params(config: dict, dataset: str) -> dict:
+    """Parameters of rule `plan_measurements`: config `plan` (defaults PLAN_DEFAULTS; its
+    `datasets` list says which datasets get a plan) and the device."""
+    settings = {**PLAN_DEFAULTS, **copy.deepcopy(config.get("plan") or {})}
+    settings.pop("datasets", None)
+    return {"settings": settings, "device": config["device"]}
+
+
+def plan_paths(config: dict) -> list[str]:
+    """plan/<dataset>.json of every dataset config `plan.datasets` names (drt must be trained)."""
+    if "drt" not in (config.get("networks") or {}):
+        return []
+    return [f"{results_dir(config)}/plan/{d}.json" for d in (config.get("plan") or {}).get("datasets") or []]
+
+
 def evaluate_params(config: dict) -> dict:
     """Parameters of rule `evaluate`: config `evaluation` and the device."""
     return {**copy.deepcopy(config.get("evaluation") or {}), "device": config["device"]}
@@ -393,6 +411,7 @@ def report_inputs(config: dict) -> dict[str, list[str]]:
         "psnr": [f"{r}/figures/{d}/{m}_psnr.png" for d in datasets for m in networks],
         "data_efficiency": [f"{r}/figures/data_efficiency.png"] if efficiency else [],
         "recovery": recovery_paths(config),
+        "plan": plan_paths(config),
         "diagnosis": diagnosis_paths(config),
         "diagnosis_figures": [f"{r}/figures/diagnosis/{d}_{kind}.png" for d in diagnosed
                               for kind in ("signatures", "ranking", "residuals", "location", "ledger")],

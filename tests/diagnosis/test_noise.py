@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 import torch
 
-from helioflow.diagnosis.noise import measure_noise, noise_floor
+from helioflow.data.noise import measure_noise
+from helioflow.diagnosis.noise import noise_floor
 from helioflow.scoring.metrics import misplaced_flux
 
 SIDE = 64

@@ -247,7 +247,7 @@ def test_report_inputs_of_the_tiny_config_list_the_expected_files():
         "datasets": [f"{r}/datasets/scan.h5", f"{r}/datasets/sky.h5"],
         "dataset_figures": [f"{r}/figures/datasets/scan.png", f"{r}/figures/datasets/sky.png"],
         "paint_centroids": [], "table": [], "samples": [], "psnr": [], "data_efficiency": [], "recovery": [],
-        "diagnosis": [], "diagnosis_figures": [], "field": [], "leave_one_out": [],
+        "plan": [], "diagnosis": [], "diagnosis_figures": [], "field": [], "leave_one_out": [],
     }
     config = copy.deepcopy(config)
     config.update(networks={"nearest": {}}, diagnosis={}, field={})
@@ -259,7 +259,9 @@ def test_report_inputs_of_the_tiny_config_list_the_expected_files():
     assert f"{r}/figures/diagnosis/sky_ledger.png" in inputs["diagnosis_figures"]
     assert len(inputs["diagnosis_figures"]) == 10
     assert inputs["field"] == [f"{r}/field/flux.png", f"{r}/field/metrics.json"]
-    assert inputs["recovery"] == []  # drt is not among the networks
+    assert inputs["recovery"] == [] and inputs["plan"] == []  # drt is not among the networks
+    config.update(networks={"drt": {}}, plan={"datasets": ["sky"]})
+    assert report_inputs(config)["plan"] == [f"{r}/plan/sky.json"]  # the datasets config `plan` names
 
 
 def test_recovery_files_are_the_synthetic_datasets_drt_is_scored_on():

@@ -27,6 +27,7 @@ from helioflow.workflow import (
     leave_one_out_inputs,
     import_paint_params,
     metrics_paths,
+    plan_params,
     name_pattern,
     paint_datasets,
     paint_heliostat_inputs,

@@ -101,3 +101,23 @@ rule data_efficiency:
     shell:
         "helioflow data-efficiency --metrics @{input.spec:q} --figure {output.figure:q} --csv {output.csv:q}"
         " > {log:q} 2>&1"
+
+
+rule plan_measurements:
+    """The next calibration images of a dataset: the sun positions that shrink drt's uncertainty most."""
+    input:
+        model=f"{RESULTS}/models/{{dataset}}/drt.pt",
+        dataset=f"{RESULTS}/datasets/{{dataset}}.h5",
+    output:
+        f"{RESULTS}/plan/{{dataset}}.json",
+    params:
+        torch_threads=TORCH_THREADS,
+        spec=lambda wc: json.dumps(plan_params(config, wc.dataset)),
+    log:
+        f"{RESULTS}/logs/plan_measurements/{{dataset}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/plan_measurements/{{dataset}}.tsv"
+    threads: TORCH_THREADS
+    shell:
+        "helioflow --threads {params.torch_threads:q} plan-measurements --spec {params.spec:q} --model {input.model:q}"
+        " --dataset {input.dataset:q} --output {output:q} > {log:q} 2>&1"

@@ -15,10 +15,16 @@
    step from it); subsets of changes that each help too little alone are left to the next
    revision's diagnosis (the loop). The cost: n single fits, and the pairs that hold one of the m
    meaningful singles, m (n - 1) - m (m - 1) / 2 (none when nothing is missing). Changes
-   that explain the same residual are reported as confounded, with the measurement that would
-   separate them; fitted values outside their physical range are flagged. Pure scale effects
+   that explain the same residual are reported as confounded: alike held-out errors, or their
+   parameters correlated beyond CORRELATED_EFFECTS at their joint fit (the covariance of
+   models/uncertainty.py, for fits of at most COVARIANCE_PARAMETERS parameters). Each pair comes
+   with the measurement that would separate them: from the joint fit's covariance where it has one
+   (the sun positions that lower the pair's correlation most, models/planning.py), else the
+   effects' own words. Fitted values outside their physical range are flagged. Pure scale effects
    (unidentifiable on images compared by shape) are listed after the others.
-3. A plain-language verdict names the top effect with its signature.
+3. A plain-language verdict names the top effect with its signature. The final model's fitted
+   numbers carry their sigma (JSON `uncertainty`), and every image its predicted centroid with its
+   sigma (`signatures.per_image.model_centroid_*`).
 
 The error measure is the misplaced flux fraction: half the L1 distance between the predicted and
 measured images, each divided by its own sum (0 = same shape, 1 = no overlap); a pure scale
@@ -41,10 +47,11 @@ import torch
 from torch import Tensor
 
 from helioflow.data.hdf5 import read_dataset
+from helioflow.data.noise import measure_noise
 from helioflow.data.surfaces import read_heliostat
 from helioflow.device import resolve_device
 from helioflow.diagnosis.candidates import Candidate, candidates, implausible, separating
-from helioflow.diagnosis.noise import measure_noise, noise_floor
+from helioflow.diagnosis.noise import noise_floor
 from helioflow.diagnosis.residuals import by_sun_position, in_image, on_mirror
 from helioflow.errors import DataError
 from helioflow.io import write_text_atomic
@@ -54,7 +61,11 @@ from helioflow.models.physics_fit import (
     Measurements,
     fit_effects,
     initial_tensors,
+    spot_spread,
+    with_uncertainty,
 )
+from helioflow.models.planning import canonical_correlation, image_information, plan
+from helioflow.models.uncertainty import end_state
 from helioflow.physics.effects import FIT, REGISTRY, fitted_parameters
 from helioflow.physics.scene import Scene, dataset_scene
 from helioflow.scoring.metrics import misplaced_flux
@@ -72,6 +83,10 @@ NOISE_METHOD = ("parametric bootstrap: the final model's held-out images re-nois
                 "the images (per signal level, Immerkaer's operator; diagnosis/noise.py) and scored like the "
                 "measurements")
 CONFOUNDED_RATIO = 1.5  # two changes whose held-out errors are within this factor explain the same residual alike
+CORRELATED_EFFECTS = 0.95  # two effects whose parameters correlate beyond this at their joint fit are confounded
+COVARIANCE_PARAMETERS = 64  # joint fits with at most this many parameters get a covariance (the surface has hundreds)
+SEPARATING_IMAGES = 3  # sun positions named as the measurement that separates a confounded pair
+SUN_GRID = [(az, el) for az in range(-150, 151, 30) for el in range(10, 81, 10)]  # where they are sought (deg)
 CORE_FRACTION = 0.05  # the sun-limited core: pixels where the model's spot exceeds this fraction of its peak
 EXPLAINED = 2.0  # a held-out error up to this many times the noise floor is explained down to the noise (a fitted
 #                  model adds its parameters' estimation error to the noise: 0.9-1.7 x on the independent cases)
@@ -133,6 +148,7 @@ class Diagnosis:
         self.fits: dict[frozenset, tuple[float, FitResult]] = {}
         self.noise = measure_noise(torch.cat((train.images, heldout.images)))
         self.floors: dict[frozenset, tuple[float, float]] = {}
+        self.covariances: dict[frozenset, FitResult | None] = {}
 
     def effects_with(self, labels) -> dict:
         """The model's effect list with the candidates `labels` applied."""
@@ -255,6 +271,12 @@ class Diagnosis:
             if r["effect"] in selected:
                 seen = {c["effect"] for c in alike}
                 alike += [c for c in self.swapped(r["effect"], selected) if c["effect"] not in seen]
+                seen = {c["effect"] for c in alike}
+                alike += [c for c in self.correlated(r["effect"], selected) if c["effect"] not in seen]
+            for c in alike:  # the correlation of the pair at a joint fit, where one has a covariance
+                found = self.correlation(r["effect"], c["effect"], selected) if "correlation" not in c else None
+                if found is not None:
+                    c["correlation"] = round(found[0], 4)
             r["confounded_with"] = alike
         return before, self.fitted(())[1], ranking, self.skipped, selected
 
@@ -277,6 +299,70 @@ class Diagnosis:
                             "given": rest, "heldout_error": swapped,
                             "separated_by": separating(self.candidate[label].effect, c.effect)})
         return out
+
+    def with_covariance(self, key: frozenset) -> FitResult | None:
+        """The fit of the candidates `key` with its uncertainty (models/uncertainty.py), or None when
+        it was not fitted or has more than COVARIANCE_PARAMETERS parameters."""
+        if key not in self.covariances:
+            fit = self.fits[key][1] if key in self.fits else None
+            _, masks = initial_tensors(fit.effects, self.scene.heliostat) if fit else (None, {})
+            size = sum(int(m.sum()) for m in masks.values()) + sum(e not in masks for e, _ in fit.fitted) if fit else 0
+            self.covariances[key] = (with_uncertainty(self.scene, fit, self.train, "shape")
+                                     if fit and size <= COVARIANCE_PARAMETERS else None)
+        return self.covariances[key]
+
+    def correlated(self, label: str, chosen: list[str]) -> list[dict]:
+        """Candidates the images cannot tell from `label`: at the joint fit of the chosen changes with
+        the candidate (or of the two alone; the fits the selection made), the first canonical
+        correlation of the two effects' parameters is beyond CORRELATED_EFFECTS. Each with that
+        correlation and the sun positions that would separate them (`separated_by`)."""
+        out = []
+        for c in self.tried:
+            other = c.label
+            if other in chosen or not self.compatible([label, other]) or not REGISTRY[c.effect].identifiable:
+                continue
+            found = self.correlation(label, other, chosen)
+            if found is None or found[0] < CORRELATED_EFFECTS:
+                continue
+            r, key = found
+            rest = sorted(key - {label, other})
+            out.append({"effect": other, "relative_reduction": 1.0 - self.error([*rest, other]) / max(self.error(rest), 1e-30),
+                        "given": rest, "heldout_error": self.error([*rest, other]), "correlation": round(r, 4),
+                        "separated_by": self.separating_images(key, label, other)})
+        return out
+
+    def correlation(self, label: str, other: str, chosen: list[str]) -> tuple[float, frozenset] | None:
+        """(first canonical correlation of the two candidates' parameters, the fit it comes from): the
+        joint fit of the chosen changes with `other`, else of the two alone; None where neither was
+        fitted or has a covariance."""
+        for key in (frozenset({*chosen, other}), frozenset({label, other})):
+            fit = self.with_covariance(key) if label in key else None
+            if fit is None:
+                continue
+            a, b = (self._indices(fit, n) for n in (label, other))
+            if a and b:
+                return canonical_correlation(fit.uncertainty.covariance, a, b), key
+        return None
+
+    def _indices(self, fit: FitResult, label: str) -> list[int]:
+        prefix = self.candidate[label].effect + "."
+        return [k for k, n in enumerate(fit.uncertainty.names) if n.startswith(prefix)]
+
+    def separating_images(self, key: frozenset, label: str, other: str) -> str:
+        """The measurement that separates two confounded candidates, from the joint fit's covariance:
+        the SEPARATING_IMAGES sun positions of SUN_GRID that lower their correlation most
+        (models/planning.py, criterion "pair"), in words."""
+        fit = self.with_covariance(key)
+        effects = (self.candidate[label].effect, self.candidate[other].effect)
+        az, el = (torch.tensor([s[i] for s in SUN_GRID], dtype=torch.float32, device=self.train.images.device)
+                  for i in (0, 1))
+        _, masks = initial_tensors(fit.effects, self.scene.heliostat)
+        state = end_state(self.scene, fit, az, el, self.train.scale, "shape", masks)
+        picks = plan(image_information(state, fit.fitted, masks, fit.uncertainty), fit.uncertainty,
+                     SEPARATING_IMAGES, "pair", pair=effects)
+        where = ", ".join(f"(azimuth {SUN_GRID[p.index][0]}, elevation {SUN_GRID[p.index][1]} deg)" for p in picks)
+        return (f"images at the sun positions {where}, where the two predict the most different spots (their "
+                f"correlation falls to {-picks[-1].gain:.2f})")
 
     def confounded(self, label: str) -> list[dict]:
         """Candidates that explain the same residual as `label`: each alone cuts the held-out error
@@ -326,6 +412,15 @@ def config_line(candidate: Candidate, fit: FitResult) -> str:
         value = values.get(f"{candidate.effect}.{k}", v) if v == FIT else v
         params[k] = v if isinstance(value, list) else (round(value, 4) if isinstance(value, float) else value)
     return f"{candidate.effect}: {{{', '.join(f'{k}: {v}' for k, v in params.items())}}}"
+
+
+def _predicted_centroids(spots: dict[str, np.ndarray]) -> dict[str, list]:
+    """The final model's predicted spot centroid per image (mrad from the target centre, right / up,
+    as seen from the heliostat) and its sigma from the fit's covariance (physics_fit.spot_spread)."""
+    (right, up), (s_right, s_up) = spots["centroid_mrad"].T, spots["centroid_sigma_mrad"].T
+    return {"model_centroid_right_mrad": np.round(right, 4).tolist(), "model_centroid_up_mrad": np.round(up, 4).tolist(),
+            "model_centroid_sigma_right_mrad": np.round(s_right, 5).tolist(),
+            "model_centroid_sigma_up_mrad": np.round(s_up, 5).tolist()}
 
 
 def _summarised(values: dict) -> dict:
@@ -383,8 +478,11 @@ def verdict(ranking: list[dict], summary: dict, remaining: dict, location: dict)
     for r in meaningful:
         for c in r["confounded_with"]:
             given = f"given {', '.join(g.replace('_', ' ') for g in c['given'])}" if c["given"] else "alone"
+            r_text = (f"; their parameters correlate at r = {c['correlation']:.2f} at the joint fit"
+                      if c.get("correlation") is not None else "")
             text += (f" {_words(r).capitalize()} and {c['effect'].replace('_', ' ')} ({c['relative_reduction']:.0%} "
-                     f"{given}) explain the same residual on these images: {c['separated_by']} would tell them apart.")
+                     f"{given}) explain the same residual on these images{r_text}: {c['separated_by']} would tell "
+                     f"them apart.")
         for flag in implausible({f"{r['changes']}.{k}": v for k, v in r["fitted"].items()}):
             text += f" The fitted {flag} is implausible: it likely stands in for another effect."
     if remaining["explained"]:
@@ -524,9 +622,10 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
                           settings["max_effects"])
     before, model, ranking, skipped, chosen = diagnosis.rank()
     remaining = diagnosis.remaining(chosen)
-    final = diagnosis.fitted(chosen)[1]
+    final = with_uncertainty(fit_scene, diagnosis.fitted(chosen)[1], diagnosis.train, "shape")
     everything = _measurements(ds, np.arange(len(ds.images)), scale)
     sun = everything.azimuth_deg.to(device), everything.elevation_deg.to(device)
+    spots = {k: v.cpu().numpy() for k, v in spot_spread(fit_scene, final, *sun, scale, "shape").items()}
     with torch.no_grad():
         pred, lost = fit_scene.simulate(model.effects, model.tensors, *sun, with_lost=True)
         pred, lost = pred.cpu() / scale, lost.cpu() / scale
@@ -576,7 +675,9 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
                                      "split": ds.split.tolist(),
                                      **{k: np.round(v, 5).tolist() for k, v in sig.items()},
                                      "remaining_error": np.round(error_each, 5).tolist(),
-                                     "noise_floor": np.round(floor_each, 5).tolist()}},
+                                     "noise_floor": np.round(floor_each, 5).tolist(),
+                                     **_predicted_centroids(spots)}},
+        "uncertainty": {"changes": chosen, **final.uncertainty.as_json()},
         "location": location,
         "verdict": (heldout["note"] + " " if heldout["note"] else "") + verdict(ranking, summary, remaining, location),
         "ledger": ledger,

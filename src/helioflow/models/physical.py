@@ -28,7 +28,8 @@ from torch import Tensor
 from helioflow.checks import check_ranges, check_types
 from helioflow.data.surfaces import read_heliostat
 from helioflow.models.base import SpotModel, TrainingData
-from helioflow.models.physics_fit import FitResult, FitSettings, Measurements, fit_effects
+from helioflow.models.physics_fit import FitResult, FitSettings, Measurements, fit_effects, with_uncertainty
+from helioflow.models.uncertainty import FitUncertainty
 from helioflow.physics.effects import FIT, REGISTRY, check_effects
 from helioflow.physics.heliostat import Heliostat
 from helioflow.physics.scene import Scene, dataset_scene
@@ -160,9 +161,10 @@ class RaytraceModel(SpotModel):
                                loss="shape" if c.per_image_normalised else "absolute",
                                facet_hops=c.facet_hops, pinned_hops=c.pinned_hops, seed=c.seed,
                                gauss_newton_steps=c.gauss_newton_steps)
-        self.fitted = fit_effects(self.scene(fitting=True), self.effects_to_fit(self.heliostat), measured,
-                                  settings, progress=True, label=f"fit {self.name}", finish=self.scene(),
-                                  checkpoint=checkpoint_path)
+        fitted = fit_effects(self.scene(fitting=True), self.effects_to_fit(self.heliostat), measured,
+                             settings, progress=True, label=f"fit {self.name}", finish=self.scene(),
+                             checkpoint=checkpoint_path)
+        self.fitted = with_uncertainty(self.scene(), fitted, measured, settings.loss)
         self.curve = [{"step": i, "loss": v} for i, v in enumerate(self.fitted.history)]
 
     def to_device(self, device: torch.device) -> RaytraceModel:
@@ -177,11 +179,14 @@ class RaytraceModel(SpotModel):
         h = self.heliostat
         return {"heliostat": None if h is None else {k: v for k, v in vars(h).items()},
                 "effects": self.fitted.effects, "tensors": self.fitted.tensors, "fitted": self.fitted.fitted,
-                "scale": self.scale}
+                "scale": self.scale,
+                "uncertainty": None if self.fitted.uncertainty is None else self.fitted.uncertainty.state()}
 
     def set_extra_state(self, state: dict) -> None:
         self.heliostat = None if state["heliostat"] is None else Heliostat(**state["heliostat"])
-        self.fitted = FitResult(state["effects"], state["tensors"], fitted=state["fitted"])
+        uncertainty = state.get("uncertainty")  # None in a model written before uncertainties
+        self.fitted = FitResult(state["effects"], state["tensors"], fitted=state["fitted"],
+                                uncertainty=None if uncertainty is None else FitUncertainty.from_state(uncertainty))
         self.scale = state["scale"]
         self.to_device(self.device)
 

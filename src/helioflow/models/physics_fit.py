@@ -61,7 +61,7 @@ from __future__ import annotations
 import logging
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -70,6 +70,7 @@ from tqdm import tqdm
 
 from helioflow.errors import DataError
 from helioflow.io import fingerprint, load_torch, save_torch_atomic
+from helioflow.models.uncertainty import FitUncertainty, end_state, fit_uncertainty, predicted_spread
 from helioflow.physics.effects import REGISTRY, TENSOR_EFFECTS, fitted_parameters, with_role
 from helioflow.physics.heliostat import Heliostat
 from helioflow.physics.scene import LinearisedScene, Scene, effective_tensors, normalised
@@ -101,13 +102,14 @@ class Measurements:
 @dataclass
 class FitResult:
     """Fitted effect list (numbers; tensor parameters stay "fit"), tensors (tracking (5,) mrad,
-    canting (F, 2) mrad, surface (F, C, C) mm), the loss history and which (effect, parameter)
-    pairs were fitted."""
+    canting (F, 2) mrad, surface (F, C, C) mm), the loss history, which (effect, parameter)
+    pairs were fitted and, where computed, how sure each fitted number is (models/uncertainty.py)."""
 
     effects: dict
     tensors: dict[str, Tensor]
     history: list[float] = field(default_factory=list)
     fitted: list[tuple[str, str]] = field(default_factory=list)
+    uncertainty: FitUncertainty | None = None
 
     def fitted_values(self) -> dict[str, float | list]:
         """{"effect.parameter": value} of every fitted parameter, tensors as flat lists (mrad/mm)."""
@@ -262,6 +264,25 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
     if linear:
         effects = fit.with_linear(effects, tensors)
     return FitResult(effects, effective_tensors({k: v.detach() for k, v in tensors.items()}), history, pairs)
+
+
+def with_uncertainty(scene: Scene, result: FitResult, data: Measurements, loss: str) -> FitResult:
+    """`result` (fitted to `data` with `loss`) with the covariance of its fitted parameters
+    (models/uncertainty.py) on `scene`'s trace (the one the model predicts with)."""
+    _, masks = initial_tensors(result.effects, scene.heliostat)
+    state = end_state(scene, result, data.azimuth_deg, data.elevation_deg, data.scale, loss, masks)
+    return replace(result, uncertainty=fit_uncertainty(state, result.fitted, masks, data.images))
+
+
+def spot_spread(scene: Scene, result: FitResult, azimuth_deg: Tensor, elevation_deg: Tensor, scale: float,
+                loss: str, with_flux: bool = False) -> dict[str, Tensor]:
+    """The spots a fit with its uncertainty predicts at (N,) sun positions (deg), with their sigma
+    (uncertainty.predicted_spread: centroids in mrad, flux divided by `scale`)."""
+    if result.uncertainty is None:
+        raise ValueError("this fit has no uncertainty (physics_fit.with_uncertainty)")
+    _, masks = initial_tensors(result.effects, scene.heliostat)
+    return predicted_spread(end_state(scene, result, azimuth_deg, elevation_deg, scale, loss, masks), result.fitted,
+                            masks, result.uncertainty, with_flux)
 
 
 class FitCheckpoint:

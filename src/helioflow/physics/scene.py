@@ -45,7 +45,7 @@ class Scene:
 
     def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,
                  seed: int = 0, with_lost: bool = False, facets: Tensor | None = None,
-                 mirror_weight: Tensor | None = None) -> Tensor | tuple[Tensor, Tensor]:
+                 mirror_weight: Tensor | None = None, projected: bool = False) -> Tensor | tuple[Tensor, Tensor]:
         """(N,) sun positions (deg) -> (N, H, W) images (W/m^2) under `effects` (numbers only for
         scalars) with the heliostat tensors in `tensors` ({"tracking": (5,) mrad, "canting": (F, 2)
         mrad, "surface": (F, C, C) mm}, each optional; "fit" entries of `effects` are taken from
@@ -59,10 +59,14 @@ class Scene:
         with K / F of the rays; their images add up to the heliostat's.
 
         mirror_weight: (P,) weight of each surface point's power (physics.raytrace.trace; the whole
-        heliostat's points, not with `facets`)."""
+        heliostat's points, not with `facets`).
+
+        projected: the tensors are already as the heliostat takes them (`effective_tensors`) and
+        are traced as given: a change of one facet's entry then changes that facet alone (what a
+        Jacobian per facet needs, models/uncertainty.py)."""
         physics = self._physics(effects)
         h = physics.heliostat
-        effective = effective_tensors(tensors)
+        effective = tensors if projected else effective_tensors(tensors)
         h = replace(h, **{TENSOR_EFFECTS[k].field: v * 1e-3 for k, v in effective.items()})
         rays = self.rays
         if facets is not None:
@@ -110,13 +114,14 @@ class LinearisedScene:
         return self.scene.heliostat
 
     def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,
-                 seed: int = 0, with_lost: bool = False,
-                 facets: Tensor | None = None) -> Tensor | tuple[Tensor, Tensor]:
+                 seed: int = 0, with_lost: bool = False, facets: Tensor | None = None,
+                 projected: bool = False) -> Tensor | tuple[Tensor, Tensor]:
         """As Scene.simulate, at the sun positions the scene was linearised for (`seed` is unused)."""
         if not (torch.equal(azimuth_deg, self.azimuth_deg) and torch.equal(elevation_deg, self.elevation_deg)):
             raise ValueError("a linearised scene traces only the sun positions it was linearised for")
         physics = self.scene._physics(effects)
-        traced = self.trace.images(effective_tensors(tensors), physics.optics, facets, with_launched=with_lost)
+        effective = tensors if projected else effective_tensors(tensors)
+        traced = self.trace.images(effective, physics.optics, facets, with_launched=with_lost)
         return photographed(physics, self.scene.target, traced, with_lost)
 
 

@@ -58,6 +58,34 @@ def _remaining(d: dict) -> str:
             f"{esc(d.get('remaining_note', ''))}</p>")
 
 
+def uncertainty_table(u: dict | None) -> str:
+    """How sure the fitted numbers are (models/uncertainty.py's JSON): every scalar with its sigma,
+    every tensor's sigma (RMS) and how many of its entries are not determined, the residual's
+    structure and the strongest correlations; empty without one."""
+    if not isinstance(u, dict) or not isinstance(u.get("scalars"), dict):
+        return ""
+    rows = [[name, v.get("value"), v.get("sigma"), v.get("unit"), "yes" if v.get("determined") else "no"]
+            for name, v in u["scalars"].items()]
+    for name, t in (u.get("tensors") or {}).items():
+        sigma = [x for x in _flat(t.get("sigma")) if x is not None]
+        rms = (sum(x * x for x in sigma) / len(sigma)) ** 0.5 if sigma else None
+        rows.append([name, "(per entry)", rms, t.get("unit"),
+                     f"{len(sigma) - int(t.get('undetermined') or 0)} of {len(sigma)} entries"])
+    pairs = "; ".join(f"{c['a']} ~ {c['b']}: r = {c['r']}" for c in u.get("correlations") or [])
+    return (table(["parameter", "fitted", "sigma (RMS for a tensor)", "unit", "determined"], rows)
+            + f"<p>Residual structure {fmt(u.get('structure'))} (about 1 for noise; beyond "
+              f"{fmt((u.get('structured_beyond') or {}).get('spreads'))} the spreads, beyond "
+              f"{fmt((u.get('structured_beyond') or {}).get('facet'))} on a facet its canting and surface are "
+              f"not determined). "
+              f"{'Strongest correlations: ' + esc(pairs) + '.' if pairs else ''}</p>")
+
+
+def _flat(values) -> list:
+    if isinstance(values, list):
+        return [x for v in values for x in _flat(v)]
+    return [values]
+
+
 def _ranking(d: dict) -> str:
     rows = [[i + 1, r.get("effect"), _fitted(r.get("fitted")), r.get("heldout_error_before"),
              r.get("heldout_error_after"), _pct(r.get("relative_reduction")), r.get("identifiable")]
@@ -74,6 +102,10 @@ def diagnosis_section(files: dict[str, list[str]]) -> str:
         name = d["dataset"]
         parts += [f"<h3>{esc(name)}</h3>", f'<p class="verdict">{esc(d.get("verdict", ""))}</p>',
                   _terms(d), _remaining(d), "<h4>Missing effects, best first</h4>", _ranking(d)]
+        if d.get("uncertainty"):
+            changes = ", ".join(d["uncertainty"].get("changes") or []) or "no change"
+            parts += [f"<h4>How sure the final model's numbers are ({esc(changes)})</h4>",
+                      uncertainty_table(d["uncertainty"])]
         if d.get("not_tested"):
             rows = [[t.get("effect"), t.get("reason")] for t in d["not_tested"]]
             parts += ["<h4>Not tested</h4>", table(["effect", "reason"], rows)]

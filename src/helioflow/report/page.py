@@ -10,6 +10,7 @@ benchmark files, and writes results/<experiment>/report.html with the sections
     Sample grids        figures/<d>/<model>_samples.png
     PSNR / sun position figures/<d>/<model>_psnr.png (+ figures/data_efficiency.png)
     Recovery            recovery/<d>.json: what drt recovered of each synthetic heliostat, as tables
+    Next images         plan/<d>.json: the calibration images that shrink drt's uncertainty most
     Diagnosis           diagnosis/<d>.json: verdict, ranking, signatures; figures/diagnosis/<d>_*.png
     Error ledger        the `ledger` of each diagnosis JSON and figures/diagnosis/<d>_ledger.png
     Field flux maps     field/flux.png (truth, ideal, hybrid maps beside their differences to truth)
@@ -49,7 +50,7 @@ from helioflow.report.html import (
 )
 
 SECTIONS = ("datasets", "dataset_figures", "paint_centroids", "table", "samples", "psnr", "data_efficiency",
-            "recovery", "diagnosis", "diagnosis_figures", "field", "leave_one_out")
+            "recovery", "plan", "diagnosis", "diagnosis_figures", "field", "leave_one_out")
 ABSENT = '<p class="absent">Not part of this experiment.</p>'
 
 
@@ -125,6 +126,24 @@ def _recovery_section(files: dict[str, list[str]]) -> str:
     return "\n".join(parts)
 
 
+def _plan_section(files: dict[str, list[str]]) -> str:
+    """Per planned dataset: the next calibration images and the sigma they leave (models/planning.py)."""
+    parts = []
+    for path in files["plan"]:
+        data = read_json(path)
+        if not isinstance(data, dict) or not isinstance(data.get("next"), list):
+            raise DataError(f"{path}: not a plan JSON (written by `helioflow plan-measurements --output`)")
+        now = data.get("sigma_now") or {}
+        keys = list(now)[:8]
+        rows = [["now", "", "", "", *[now.get(k) for k in keys]]]
+        rows += [[n.get("rank"), n.get("time") or "", n.get("azimuth_deg"), n.get("elevation_deg"),
+                  *[(n.get("sigma_after") or {}).get(k) for k in keys]] for n in data["next"]]
+        parts += [f"<h3>{esc(Path(path).stem)}</h3>",
+                  f"<p>{esc(data.get('criterion'))} over {esc((data.get('candidates') or {}).get('source'))}.</p>",
+                  table(["image", "time (UTC)", "azimuth (deg)", "elevation (deg)", *[f"sigma {k}" for k in keys]], rows)]
+    return "\n".join(parts)
+
+
 def _field_section(files: dict[str, list[str]]) -> str:
     """The field figure (compose_field draws the maps beside their differences to truth) and the
     metrics against truth, any nesting of them, as tables."""
@@ -167,6 +186,7 @@ LAYOUT = (
     ("samples", "Sample grids", ("samples",), _samples_section),
     ("psnr", "PSNR against sun position", ("psnr", "data_efficiency"), _psnr_section),
     ("recovery", "What drt recovered of the true heliostats", ("recovery",), _recovery_section),
+    ("plan", "The next calibration images", ("plan",), _plan_section),
     ("diagnosis", "Diagnosis: which effect is missing", ("diagnosis",), diagnosis_section),
     ("ledger", "Error ledger", ("diagnosis",), ledger_section),
     ("field", "Field flux maps", ("field",), _field_section),

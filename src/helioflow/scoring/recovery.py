@@ -12,6 +12,11 @@ Compares the model file's fitted tensors with the heliostat file the dataset was
   correlation, and the correlation per facet (which facets came back);
 - canting (several facets): RMS error and RMS of the true tilts (mrad);
 - slope error: fitted and true sigma (mrad);
+- how sure the fit said it was (models/uncertainty.py, where the model file holds it): sigma beside
+  every fitted value, and `coverage` per quantity: the share of true values within the fit's 95 %
+  interval (fitted +- 1.96 sigma; ~0.95 for a fit that reached its optimum and a right noise
+  model), over the determined values, with how many were reported "not determined" and how many of
+  those are off by more than their interval (a flag that was needed);
 - PSNR (dB) per split, scored as the `evaluate` rule scores: the model as fitted, and the same model
   with the true heliostat in it (its tracking, canting and surface, and the world's slope error)
   instead of the fitted one. Their difference is what the remaining recovery error costs the
@@ -34,8 +39,10 @@ from helioflow.data.surfaces import read_heliostat
 from helioflow.errors import DataError
 from helioflow.io import write_text_atomic
 from helioflow.models.registry import load_model
+from helioflow.models.uncertainty import Z95, FitUncertainty
+from helioflow.physics.effects.canting import zero_mean
 from helioflow.physics.geometry import sun_vector
-from helioflow.physics.heliostat import bspline_basis, orientation
+from helioflow.physics.heliostat import bspline_basis, orientation, without_planes
 from helioflow.scoring.evaluation import scored_images
 from helioflow.scoring.metrics import psnr
 
@@ -81,6 +88,8 @@ def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, d
         world = (ds.attrs.get("world_effects") or {}).get("slope_error") or {}
         out["slope_error_mrad"] = {"fitted": slope, "true": world.get("sigma_mrad", 0.0)}
         effects["slope_error"]["sigma_mrad"] = out["slope_error_mrad"]["true"]
+    if model.fitted.uncertainty is not None:
+        out.update(_with_sigma(out, model.fitted.uncertainty, true))
     fitted_psnr = _split_psnr(model, info, ds, model_path, dataset_path)
     true_tensors = {"tracking": true.tracking_error * 1e3, "canting": true.canting_error * 1e3,
                     "surface": true.control_heights * 1e3}
@@ -98,6 +107,45 @@ def write_recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathL
     result = recovery(model_path, heliostat_path, dataset_path, device)
     write_text_atomic(output, json.dumps(result, indent=1) + "\n")
     return result
+
+
+def _with_sigma(out: dict, uncertainty: FitUncertainty, true) -> dict:
+    """The recovery's entries with sigma beside each fitted value, and "coverage": per quantity the
+    share of true values (as the model defines them: canting without its mean, control heights
+    without each facet's plane) within the fit's 95 % interval (module docstring)."""
+    truths = {"tracking.": true.tracking_error.double() * 1e3,
+              "canting.": zero_mean(true.canting_error.double() * 1e3),
+              "surface.": without_planes(true.control_heights.double() * 1e3),
+              "slope_error.sigma_mrad": torch.tensor([float(out.get("slope_error_mrad", {}).get("true", 0.0))])}
+    keys = {"tracking.": "tracking_mrad", "canting.": "canting_mrad", "surface.": "surface_mm",
+            "slope_error.sigma_mrad": "slope_error_mrad"}
+    coverage, updated = {}, {}
+    for prefix, truth in truths.items():
+        at = [k for k, n in enumerate(uncertainty.names) if n.startswith(prefix)]
+        if len(at) != truth.numel() or keys[prefix] not in out:  # a partly fitted tensor: no truth per entry
+            continue
+        names = [uncertainty.names[k] for k in at]
+        fitted, sigma = uncertainty.values[at], uncertainty.sigma[at]
+        truth = truth.flatten().numpy()
+        inside = np.abs(fitted - truth) <= Z95 * sigma
+        flagged = np.array([n in uncertainty.undetermined for n in names])
+        entry = dict(out[keys[prefix]])
+        entry["sigma"] = (_rounded(torch.as_tensor(sigma)) if prefix in ("tracking.", "slope_error.sigma_mrad")
+                          else {"rms": round(float(np.sqrt(np.mean(sigma**2))), 5), "max": round(float(sigma.max()), 5)})
+        if prefix == "slope_error.sigma_mrad":
+            entry["sigma"] = entry["sigma"][0]
+        entry["not_determined"] = int(flagged.sum())
+        updated[keys[prefix]] = entry
+        coverage[keys[prefix]] = {
+            "within_95": None if flagged.all() else round(float(inside[~flagged].mean()), 4),
+            "determined": int((~flagged).sum()),
+            "not_determined": int(flagged.sum()),
+            "not_determined_and_outside": int((flagged & ~inside).sum()),
+            "within_95_if_all_trusted": round(float(inside.mean()), 4)}
+    updated["coverage"] = coverage
+    updated["uncertainty"] = {k: uncertainty.as_json()[k] for k in ("misfit", "structure", "structured_beyond",
+                                                                     "facet_structure", "correlations")}
+    return updated
 
 
 def surface_heights(control_heights_mm: torch.Tensor, samples_per_side: int = 64) -> torch.Tensor:

@@ -1,0 +1,74 @@
+"""The next images (models/planning.py): the sigma `plan` expects after an image is the sigma the fit
+reports once the image is taken, a targeted plan shrinks its targets at least as much as the
+information-gain plan, and the sun path has the sun where it should be."""
+
+from datetime import datetime, timezone
+
+import numpy as np
+import pytest
+import torch
+from test_physical import BUIE, scene, suns
+from test_uncertainty import TRACKING, noisy
+
+from helioflow.models.physics_fit import (
+    FitSettings,
+    Measurements,
+    fit_effects,
+    initial_tensors,
+    with_uncertainty,
+)
+from helioflow.models.planning import canonical_correlation, image_information, plan, sun_path
+from helioflow.models.uncertainty import end_state
+
+TRUTH = {"tracking": torch.tensor([0.8, -0.5, 0.3, -0.6, 0.4])}
+WORLD = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 1.5}, "tracking": {}}
+MODEL = {"sunshape": BUIE, "slope_error": {"sigma_mrad": "fit"}, "tracking": TRACKING}
+
+
+def images(s, az, el, scale=None, seed=0):
+    with torch.no_grad():
+        clean = s.simulate(WORLD, TRUTH, az, el)
+    scale = scale or float(clean.max())
+    return Measurements(noisy(clean / scale, seed), az, el, scale)
+
+
+@pytest.mark.slow
+def test_the_sigma_a_plan_expects_is_the_sigma_of_the_refit_with_the_picked_image():
+    s = scene()
+    az, el = suns(6, 3)  # a narrow start: 6 images, two azimuths
+    taken = images(s, az[:6], el[:6])
+    settings = FitSettings(steps=60, rounds=2, gauss_newton_steps=3, search_iterations=20)
+    fit = with_uncertainty(s, fit_effects(s, MODEL, taken, settings), taken, "absolute")
+    grid_az, grid_el = (torch.tensor(v, dtype=torch.float32) for v in zip(*[(a, e) for a in (-80.0, -20.0, 40.0, 90.0)
+                                                                              for e in (15.0, 40.0, 70.0)]))
+    _, masks = initial_tensors(fit.effects, s.heliostat)
+    state = end_state(s, fit, grid_az, grid_el, taken.scale, "absolute", masks)
+    information = image_information(state, fit.fitted, masks, fit.uncertainty)
+    picks = plan(information, fit.uncertainty, 3)
+    assert len({p.index for p in picks}) == 3 and all(np.all(p.sigma_after <= fit.uncertainty.sigma * 1.0001) for p in picks)
+    chosen = torch.tensor([p.index for p in picks])
+    more = images(s, torch.cat((az[:6], grid_az[chosen])), torch.cat((el[:6], grid_el[chosen])), taken.scale)
+    refit = with_uncertainty(s, fit_effects(s, MODEL, more, settings, start=fit), more, "absolute")
+    ratio = refit.uncertainty.sigma / picks[-1].sigma_after
+    assert np.all(ratio > 0.6) and np.all(ratio < 1.6), (refit.uncertainty.sigma, picks[-1].sigma_after)
+    # a plan targeted at one parameter shrinks it at least as much as the information-gain plan
+    target = "tracking.pedestal_tilt_north_mrad"
+    k = fit.uncertainty.index(target)
+    targeted = plan(information, fit.uncertainty, 3, "targets", targets=[target])
+    assert targeted[-1].sigma_after[k] <= picks[-1].sigma_after[k] * 1.0001
+
+
+def test_canonical_correlation_of_two_groups():
+    c = np.array([[1.0, 0.9, 0.0], [0.9, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    assert canonical_correlation(c, [0], [1]) == pytest.approx(0.9)
+    assert canonical_correlation(c, [0], [2]) == pytest.approx(0.0, abs=1e-12)
+    assert canonical_correlation(c, [0, 2], [1]) == pytest.approx(0.9)
+
+
+def test_the_sun_path_at_juelich_on_midsummer_noon_stands_south_at_62_degrees():
+    site = {"latitude_deg": 50.9134, "longitude_deg": 6.3878, "altitude_m": 87.0}
+    times, azimuth, elevation = sun_path(site, datetime(2026, 6, 21, 0, 0, tzinfo=timezone.utc), 1.0, 10.0, 10.0)
+    noon = int(np.argmax(elevation))
+    assert elevation[noon] == pytest.approx(90 - 50.9134 + 23.44, abs=0.5)  # solar noon: 90 - latitude + declination
+    assert abs(azimuth[noon]) < 3.0  # helioflow's azimuth: 0 = south
+    assert min(elevation) >= 10.0 and 10.5 < (times[noon].hour + times[noon].minute / 60) < 12.5  # UTC, 6.4 deg E

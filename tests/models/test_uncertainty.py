@@ -1,0 +1,87 @@
+"""How sure a fit is (models/uncertainty.py): the reported sigma against the scatter of the fit over
+noise draws, the predicted centroid's sigma likewise, and a fit that is off (a facet's surface
+turned over) flagged instead of reported with a small sigma."""
+
+import numpy as np
+import pytest
+import torch
+from test_physical import BUIE, negated_facets, scene, suns
+
+from helioflow.models.physics_fit import (
+    FitResult,
+    FitSettings,
+    Measurements,
+    fit_effects,
+    spot_spread,
+    with_uncertainty,
+)
+from helioflow.models.uncertainty import STRUCTURED, FitUncertainty
+from helioflow.physics.effects import REGISTRY
+
+TRACKING = {p.name: "fit" for p in REGISTRY["tracking"].parameters}
+
+
+def noisy(clean: torch.Tensor, seed: int) -> torch.Tensor:
+    """Images (peak 1) with noise growing with the signal (photon-like) over a read-noise floor."""
+    g = torch.Generator().manual_seed(seed)
+    return clean + torch.randn(clean.shape, generator=g) * (0.003 + 0.02 * clean.clamp_min(0).sqrt())
+
+
+@pytest.mark.slow
+def test_reported_sigma_matches_the_scatter_of_the_fit_over_noise_draws():
+    s = scene()
+    truth = {"tracking": torch.tensor([0.8, -0.5, 0.3, -0.6, 0.4])}
+    world = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 1.5}, "tracking": {}}
+    model = {"sunshape": BUIE, "slope_error": {"sigma_mrad": "fit"}, "tracking": TRACKING}
+    az, el = suns(12)
+    with torch.no_grad():
+        clean = s.simulate(world, truth, az, el)
+    scale = float(clean.max())
+    settings = FitSettings(steps=60, rounds=2, gauss_newton_steps=3, search_iterations=20)
+    values, sigmas, centroids, centroid_sigmas = [], [], [], []
+    held_az, held_el = torch.tensor([35.0]), torch.tensor([50.0])
+    for seed in range(8):
+        data = Measurements(noisy(clean / scale, seed), az, el, scale)
+        fit = with_uncertainty(s, fit_effects(s, model, data, settings), data, "absolute")
+        u = fit.uncertainty
+        assert u.undetermined == [] and u.structure < STRUCTURED
+        values.append(u.values)
+        sigmas.append(u.sigma)
+        spot = spot_spread(s, fit, held_az, held_el, scale, "absolute")
+        centroids.append(spot["centroid_mrad"][0].numpy())
+        centroid_sigmas.append(spot["centroid_sigma_mrad"][0].numpy())
+    scatter, reported = np.std(values, 0, ddof=1), np.mean(sigmas, 0)
+    # 8 draws: the sample std is within a factor 0.55..1.5 of the true one at 95 %
+    assert np.all(scatter / reported > 0.5) and np.all(scatter / reported < 1.6), (scatter, reported)
+    assert np.median(scatter / reported) == pytest.approx(1.0, abs=0.3)
+    truth_values = np.array([*truth["tracking"].tolist(), 1.5])
+    z = (np.array(values) - truth_values) / np.array(sigmas)
+    assert np.mean(np.abs(z) < 1.96) > 0.85  # coverage of the 95 % interval
+    c_scatter, c_reported = np.std(centroids, 0, ddof=1), np.mean(centroid_sigmas, 0)
+    assert np.all(c_scatter / c_reported > 0.5) and np.all(c_scatter / c_reported < 1.6), (c_scatter, c_reported)
+
+
+def test_a_facet_left_turned_over_is_flagged_not_determined_and_the_rest_is_not():
+    s, truth, data, effects, start = negated_facets(2, 2, negated=1)
+    data = Measurements(noisy(data.images, 0), data.azimuth_deg, data.elevation_deg, data.scale)
+    wrong = FitResult(effects, {"surface": start}, fitted=[("surface", "control_heights_mm")])
+    u = with_uncertainty(s, wrong, data, "absolute").uncertainty
+    assert u.structure > STRUCTURED
+    assert np.argmax(u.facet_structure) == 0  # the residual lives most where facet 0's flux lands
+    flagged = {int(n.split("[")[1].split(",")[0]) for n in u.undetermined}
+    assert 0 in flagged  # (its neighbours' spots overlap it: they share its residual and are flagged too)
+    right = FitResult(effects, {"surface": truth}, fitted=[("surface", "control_heights_mm")])
+    u = with_uncertainty(s, right, data, "absolute").uncertainty
+    assert u.structure < STRUCTURED and u.undetermined == []
+    # a facet's plane changes no image: its heights' sigma is reported for the shape only (finite)
+    assert np.all(np.isfinite(u.sigma)) and u.as_json()["tensors"]["surface.control_heights_mm"]["unit"] == "mm"
+
+
+def test_the_uncertainty_survives_the_model_file_round_trip():
+    u = FitUncertainty(["tracking.axis1_offset_mrad", "slope_error.sigma_mrad"], ["mrad", "mrad"],
+                       np.array([0.5, 1.2]), np.array([[4e-4, 1e-4], [1e-4, 9e-4]]), 1.01, 0.98, 0.01)
+    back = FitUncertainty.from_state(u.state())
+    assert back.names == u.names and np.allclose(back.covariance, u.covariance)
+    assert back.sigma == pytest.approx([0.02, 0.03])
+    assert back.as_json()["scalars"]["slope_error.sigma_mrad"] == {"value": 1.2, "sigma": 0.03, "unit": "mrad",
+                                                                     "determined": True}

@@ -1,0 +1,172 @@
+"""How sure helioflow's fits are, checked on data it did not make (tests/paint_world.py's independent
+Monte Carlo of the real AA39 heliostat, 8-bit PNGs imported with `source: paint`), and whether the
+images `plan` recommends teach the fit more than others.
+
+Per case and seed: 40 calibrations of one world (a tracking error always, and one spread effect
+whose parametrisation helioflow shares: sun width, slope error or camera blur), split in the order
+they were taken into 8 taken so far, 24 candidates and 8 held out. The model (the believed Gaussian
+sun, tracking fitted, the case's spread fitted) is fitted on the 8 with its uncertainty, then:
+
+- coverage: is the true spread within its 95 % interval, and each held-out image's measured
+  centroid within the 95 % interval of the predicted one (the prediction's sigma from the
+  covariance and the measured centroid's own noise, from the images' noise model, together)?
+- planning: 4 more images chosen by `plan` among the candidates (d_optimal; and targeted at the
+  worst determined parameters), 4 drawn at random, and the next 4 in time; each refitted with the 8
+  and scored: the sigma of the parameters that were worst determined (the 3 whose sigma all 24
+  candidates would shrink most), and the held-out error (misplaced flux).
+
+Run: python tests/uncertainty_cases.py [--seeds 1 2 3] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from paint_world import World, write_paint_folder  # noqa: E402
+
+from helioflow.data.hdf5 import read_dataset  # noqa: E402
+from helioflow.data.noise import measure_noise  # noqa: E402
+from helioflow.data.paint import import_paint  # noqa: E402
+from helioflow.data.surfaces import read_heliostat  # noqa: E402
+from helioflow.models.physics_fit import (  # noqa: E402
+    FitSettings,
+    Measurements,
+    fit_effects,
+    initial_tensors,
+    spot_spread,
+    with_uncertainty,
+)
+from helioflow.models.planning import image_information, plan  # noqa: E402
+from helioflow.models.uncertainty import Z95, end_state  # noqa: E402
+from helioflow.physics.effects import REGISTRY  # noqa: E402
+from helioflow.physics.scene import dataset_scene  # noqa: E402
+from helioflow.scoring.metrics import misplaced_flux  # noqa: E402
+
+TAKEN, CANDIDATES, HELD_OUT, ADDED, RAYS = 8, 24, 8, 4, 400_000
+BELIEVED = {"sunshape": {"kind": "gaussian", "sigma_mrad": 2.51}}
+TRACKING = {"tracking": {p.name: "fit" for p in REGISTRY["tracking"].parameters}}
+CASES = {  # name: (world, the fitted spread: (effect, parameter, true value))
+    "sun width": (World(tracking_mrad=(1.2, -0.9), sun=("gaussian", 3.3)), ("sunshape", "sigma_mrad", 3.3)),
+    "slope error": (World(tracking_mrad=(1.2, -0.9), slope_mrad=1.5), ("slope_error", "sigma_mrad", 1.5)),
+    "camera blur": (World(tracking_mrad=(1.2, -0.9), camera=(0.0, 1.5)), ("camera", "blur_px", 1.5)),
+}
+SETTINGS = FitSettings(steps=80, rounds=2, gauss_newton_steps=3, loss="shape")
+
+
+def model_effects(spread: tuple[str, str, float]) -> dict:
+    effect, name, _ = spread
+    out = {**BELIEVED, **TRACKING}
+    out[effect] = {**out.get(effect, {}), name: "fit"}
+    return out
+
+
+def centroid_noise_mrad(scene, images: torch.Tensor, slant_m: float) -> np.ndarray:
+    """(N, 2) std (mrad, right / up) of each measured image's centroid from its pixels' noise (the
+    noise model measured in the images): var c = sum (x - c)^2 s^2 / S^2."""
+    std = measure_noise(images).std(images).double()
+    u, v = scene.target.pixel_centres(torch.float64)
+    c = scene.target.centroid(images.float()).double()
+    total = images.double().sum((-2, -1))
+    du = u[None, None, :] - c[:, 0, None, None]
+    dv = v[None, :, None] - c[:, 1, None, None]
+    out = [((d**2 * std**2).sum((-2, -1))).sqrt() / total for d in (du, dv)]
+    return (torch.stack(out, 1) / slant_m * 1e3).numpy()
+
+
+def run_case(name: str, seed: int, root: Path) -> dict:
+    world, spread = CASES[name]
+    folder = root / f"{name.replace(' ', '_')}_{seed}"
+    write_paint_folder(folder, world, n_images=TAKEN + CANDIDATES + HELD_OUT, rays=RAYS, seed=seed)
+    ids = [str(100_000 + i) for i in range(TAKEN + CANDIDATES + HELD_OUT)]
+    import_paint(folder, "AA39", folder / "data.h5", folder / "aa39.h5", holdout=ids[-HELD_OUT:], dataset=name)
+    ds = read_dataset(folder / "data.h5")
+    order = np.argsort([int(i) for i in ds.attrs["measurement_ids"]])  # the order they were taken in
+    taken, pool, held = order[:TAKEN], order[TAKEN:TAKEN + CANDIDATES], order[TAKEN + CANDIDATES:]
+    scale = float(ds.images[order[:TAKEN + CANDIDATES]].max())
+    data = lambda index: Measurements(torch.as_tensor(ds.images[index]) / scale,  # noqa: E731
+                                      torch.as_tensor(ds.azimuth_deg[index]).float(),
+                                      torch.as_tensor(ds.elevation_deg[index]).float(), scale)
+    heliostat = read_heliostat(folder / "aa39.h5").ideal()
+    scene = dataset_scene(heliostat, ds.attrs, tuple(ds.images.shape[1:]), 16, 50_000, True)
+    slant = float(np.linalg.norm(np.subtract(ds.attrs["target_center_m"], heliostat.position.numpy())))
+    effects = model_effects(spread)
+
+    def fitted(index, start=None):
+        d = data(index)
+        return with_uncertainty(scene, fit_effects(scene, effects, d, SETTINGS, start=start), d, "shape")
+
+    def heldout_error(fit) -> float:
+        d = data(held)
+        with torch.no_grad():
+            pred, lost = scene.simulate(fit.effects, fit.tensors, d.azimuth_deg, d.elevation_deg, with_lost=True)
+        return float(misplaced_flux(pred, d.images, lost).mean())
+
+    t0 = time.time()
+    first = fitted(taken)
+    u = first.uncertainty
+    k = u.index(f"{spread[0]}.{spread[1]}")
+    d_held = data(held)
+    spot = spot_spread(scene, first, d_held.azimuth_deg, d_held.elevation_deg, scale, "shape")
+    measured = (scene.target.centroid(d_held.images.float()).double() / slant * 1e3).numpy()
+    noise = centroid_noise_mrad(scene, d_held.images, slant)
+    sigma = np.sqrt(spot["centroid_sigma_mrad"].numpy() ** 2 + noise**2)
+    inside = np.abs(measured - spot["centroid_mrad"].numpy()) <= Z95 * sigma
+    out = {"case": name, "seed": seed, "spread": {"true": spread[2], "fitted": float(u.values[k]),
+                                                   "sigma": float(u.sigma[k]),
+                                                   "within_95": bool(abs(u.values[k] - spread[2]) <= Z95 * u.sigma[k])},
+           "structure": u.structure, "undetermined": u.undetermined,
+           "centroids": {"within_95": float(inside.mean()), "prediction_sigma_mrad": float(spot["centroid_sigma_mrad"].mean()),
+                         "measurement_sigma_mrad": float(noise.mean()),
+                         "error_mrad": float(np.abs(measured - spot["centroid_mrad"].numpy()).mean())}}
+    # planning: the information of each candidate at the first fit
+    _, masks = initial_tensors(first.effects, scene.heliostat)
+    d_pool = data(pool)
+    state = end_state(scene, first, d_pool.azimuth_deg, d_pool.elevation_deg, scale, "shape", masks)
+    information = image_information(state, first.fitted, masks, u)
+    every = [p.sigma_after for p in plan(information, u, CANDIDATES)][-1]  # sigma after all candidates
+    worst = np.argsort(-(u.sigma / np.maximum(every, 1e-12)))[:3]  # the parameters the candidates teach most about
+    picks = {"plan": [p.index for p in plan(information, u, ADDED)],
+             "plan, targeted": [p.index for p in plan(information, u, ADDED, "targets", [u.names[i] for i in worst])],
+             "random": list(np.random.default_rng(seed).choice(CANDIDATES, ADDED, replace=False)),
+             "next in time": list(range(ADDED))}
+    out["worst_determined"] = [u.names[i] for i in worst]
+    out["sigma_worst_before"] = float(np.sqrt(np.mean(u.sigma[worst] ** 2)))
+    out["heldout_error_before"] = heldout_error(first)
+    out["strategies"] = {}
+    for strategy, chosen in picks.items():
+        refit = fitted(np.concatenate([taken, pool[chosen]]), start=first)
+        out["strategies"][strategy] = {"sun": [[round(float(ds.azimuth_deg[pool[i]]), 2),
+                                                round(float(ds.elevation_deg[pool[i]]), 2)] for i in chosen],
+                                       "sigma_worst": float(np.sqrt(np.mean(refit.uncertainty.sigma[worst] ** 2))),
+                                       "heldout_error": heldout_error(refit)}
+    out["seconds"] = round(time.time() - t0, 1)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--cases", nargs="+", default=list(CASES))
+    ap.add_argument("--root", default="/tmp/uncertainty_cases")
+    ap.add_argument("--json", help="write the results here")
+    args = ap.parse_args()
+    torch.set_num_threads(2)
+    results = []
+    for name in args.cases:
+        for seed in args.seeds:
+            results.append(run_case(name, seed, Path(args.root)))
+            print(json.dumps(results[-1]), flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
