@@ -133,12 +133,15 @@ def run_case(name: str, seed: int, root: Path) -> dict:
     information = image_information(state, first.fitted, masks, u)
     every = [p.sigma_after for p in plan(information, u, CANDIDATES)][-1]  # sigma after all candidates
     worst = np.argsort(-(u.sigma / np.maximum(every, 1e-12)))[:3]  # the parameters the candidates teach most about
-    picks = {"plan": [p.index for p in plan(information, u, ADDED)],
-             "plan, targeted": [p.index for p in plan(information, u, ADDED, "targets", [u.names[i] for i in worst])],
+    planned = {"plan": plan(information, u, ADDED),
+               "plan, targeted": plan(information, u, ADDED, "targets", [u.names[i] for i in worst])}
+    expected = {k: float(np.sqrt(np.mean(v[-1].sigma_after[worst] ** 2))) for k, v in planned.items()}
+    picks = {**{k: [p.index for p in v] for k, v in planned.items()},
              "random": list(np.random.default_rng(seed).choice(CANDIDATES, ADDED, replace=False)),
              "next in time": list(range(ADDED))}
     out["worst_determined"] = [u.names[i] for i in worst]
     out["sigma_worst_before"] = float(np.sqrt(np.mean(u.sigma[worst] ** 2)))
+    out["sigma_worst_before_noise_only"] = float(np.sqrt(np.mean(u.sigma[worst] ** 2) / max(1.0, u.structure)))
     out["heldout_error_before"] = heldout_error(first)
     out["strategies"] = {}
     for strategy, chosen in picks.items():
@@ -146,6 +149,10 @@ def run_case(name: str, seed: int, root: Path) -> dict:
         out["strategies"][strategy] = {"sun": [[round(float(ds.azimuth_deg[pool[i]]), 2),
                                                 round(float(ds.elevation_deg[pool[i]]), 2)] for i in chosen],
                                        "sigma_worst": float(np.sqrt(np.mean(refit.uncertainty.sigma[worst] ** 2))),
+                                       "sigma_worst_expected": expected.get(strategy),
+                                       "structure": refit.uncertainty.structure,
+                                       "sigma_worst_noise_only": float(np.sqrt(np.mean(refit.uncertainty.sigma[worst] ** 2)
+                                                                               / max(1.0, refit.uncertainty.structure))),
                                        "heldout_error": heldout_error(refit)}
     out["seconds"] = round(time.time() - t0, 1)
     return out

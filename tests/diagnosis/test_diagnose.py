@@ -167,3 +167,24 @@ def test_implausible_values_are_flagged_and_confounded_pairs_get_their_separatin
             "tracking.axis1_offset_mrad = -12 (tracking offsets of more than 10 mrad)"]
     assert "target distance" in separating("camera", "slope_error") == separating("slope_error", "camera")
     assert "sun shape" in separating("sunshape", "slope_error")
+
+
+@pytest.mark.slow
+def test_a_slope_error_and_a_wider_sun_are_confounded_by_their_correlation_with_sun_positions_that_separate_them():
+    """Both widen the spot alike (a Gaussian sun and Gaussian slope errors add in quadrature; only
+    the incidence angle's foreshortening of the slope error tells them apart): at their joint fit
+    the two parameters correlate almost fully, and the separating measurement names sun positions."""
+    world = {"sunshape": {"kind": "gaussian", "sigma_mrad": 2.5}, "slope_error": {"sigma_mrad": 1.5}}
+    d = diagnosis(world, {"sunshape": {"kind": "gaussian", "sigma_mrad": 2.5}}, noise=0.01)
+    _, _, ranking, _, selected = d.rank()
+    top = ranking[0]
+    assert top["meaningful"] and top["changes"] in ("slope_error", "sunshape"), ranking[:2]
+    partner = "sunshape: fit sigma_mrad" if top["changes"] == "slope_error" else "slope_error"
+    alike = {c["effect"]: c for c in top["confounded_with"]}
+    assert partner in alike, top["confounded_with"]
+    assert alike[partner]["correlation"] > 0.95
+    words = alike[partner]["separated_by"]  # the best sun positions, and whether they separate the two
+    assert words.startswith(("images at the sun positions (azimuth", "no calibration image separates them")), words
+    assert "correlation" in words
+    found = d.correlation(top["effect"], partner, selected)
+    assert found is not None and found[0] == pytest.approx(alike[partner]["correlation"], abs=1e-3)

@@ -85,8 +85,11 @@ NOISE_METHOD = ("parametric bootstrap: the final model's held-out images re-nois
 CONFOUNDED_RATIO = 1.5  # two changes whose held-out errors are within this factor explain the same residual alike
 CORRELATED_EFFECTS = 0.95  # two effects whose parameters correlate beyond this at their joint fit are confounded
 COVARIANCE_PARAMETERS = 64  # joint fits with at most this many parameters get a covariance (the surface has hundreds)
-SEPARATING_IMAGES = 3  # sun positions named as the measurement that separates a confounded pair
-SUN_GRID = [(az, el) for az in range(-150, 151, 30) for el in range(10, 81, 10)]  # where they are sought (deg)
+CORRELATED_BLOCK = 5  # effects of at most this many parameters are compared by correlation (a block of dozens, a
+#                       surface, reaches a canonical correlation near 1 with any single width: it can bend to mimic it)
+SEPARATING_IMAGES = 3  # sun positions named as the measurement that separates a confounded pair ...
+SEPARATED = 0.8  # ... when they bring the pair's correlation below this; else the effects' own words
+SUN_GRID = [(az, el) for az in range(-120, 121, 40) for el in range(10, 81, 20)]  # where they are sought (deg)
 CORE_FRACTION = 0.05  # the sun-limited core: pixels where the model's spot exceeds this fraction of its peak
 EXPLAINED = 2.0  # a held-out error up to this many times the noise floor is explained down to the noise (a fitted
 #                  model adds its parameters' estimation error to the noise: 0.9-1.7 x on the independent cases)
@@ -273,10 +276,11 @@ class Diagnosis:
                 alike += [c for c in self.swapped(r["effect"], selected) if c["effect"] not in seen]
                 seen = {c["effect"] for c in alike}
                 alike += [c for c in self.correlated(r["effect"], selected) if c["effect"] not in seen]
-            for c in alike:  # the correlation of the pair at a joint fit, where one has a covariance
+            for c in alike:  # the correlation of the pair at a joint fit, and what separates them, where one has a covariance
                 found = self.correlation(r["effect"], c["effect"], selected) if "correlation" not in c else None
                 if found is not None:
                     c["correlation"] = round(found[0], 4)
+                    c["separated_by"] = self.separating_images(found[1], r["effect"], c["effect"])
             r["confounded_with"] = alike
         return before, self.fitted(())[1], ranking, self.skipped, selected
 
@@ -312,14 +316,16 @@ class Diagnosis:
         return self.covariances[key]
 
     def correlated(self, label: str, chosen: list[str]) -> list[dict]:
-        """Candidates the images cannot tell from `label`: at the joint fit of the chosen changes with
-        the candidate (or of the two alone; the fits the selection made), the first canonical
-        correlation of the two effects' parameters is beyond CORRELATED_EFFECTS. Each with that
+        """Candidates the images cannot tell from `label`: each cuts the held-out error meaningfully
+        alone, and at the joint fit of the chosen changes with the candidate (or of the two alone; the
+        fits the selection made) the first canonical correlation of the two effects' parameters (at
+        most CORRELATED_BLOCK each) is beyond CORRELATED_EFFECTS. Each with that
         correlation and the sun positions that would separate them (`separated_by`)."""
-        out = []
+        out, before = [], self.error(())
         for c in self.tried:
             other = c.label
-            if other in chosen or not self.compatible([label, other]) or not REGISTRY[c.effect].identifiable:
+            if (other in chosen or not self.compatible([label, other]) or not REGISTRY[c.effect].identifiable
+                    or not is_meaningful(before, self.error([other]))):  # a confounder explains some of it alone
                 continue
             found = self.correlation(label, other, chosen)
             if found is None or found[0] < CORRELATED_EFFECTS:
@@ -340,7 +346,7 @@ class Diagnosis:
             if fit is None:
                 continue
             a, b = (self._indices(fit, n) for n in (label, other))
-            if a and b:
+            if 0 < len(a) <= CORRELATED_BLOCK and 0 < len(b) <= CORRELATED_BLOCK:
                 return canonical_correlation(fit.uncertainty.covariance, a, b), key
         return None
 
@@ -351,7 +357,8 @@ class Diagnosis:
     def separating_images(self, key: frozenset, label: str, other: str) -> str:
         """The measurement that separates two confounded candidates, from the joint fit's covariance:
         the SEPARATING_IMAGES sun positions of SUN_GRID that lower their correlation most
-        (models/planning.py, criterion "pair"), in words."""
+        (models/planning.py, criterion "pair"), in words; where they leave it above SEPARATED, no
+        calibration image does, and the effects' own words (`separating`) say what would."""
         fit = self.with_covariance(key)
         effects = (self.candidate[label].effect, self.candidate[other].effect)
         az, el = (torch.tensor([s[i] for s in SUN_GRID], dtype=torch.float32, device=self.train.images.device)
@@ -361,8 +368,12 @@ class Diagnosis:
         picks = plan(image_information(state, fit.fitted, masks, fit.uncertainty), fit.uncertainty,
                      SEPARATING_IMAGES, "pair", pair=effects)
         where = ", ".join(f"(azimuth {SUN_GRID[p.index][0]}, elevation {SUN_GRID[p.index][1]} deg)" for p in picks)
+        after = -picks[-1].gain
+        if after > SEPARATED:
+            return (f"no calibration image separates them (the best {SEPARATING_IMAGES}, at {where}, leave their "
+                    f"correlation at {after:.2f}); {separating(*effects)}")
         return (f"images at the sun positions {where}, where the two predict the most different spots (their "
-                f"correlation falls to {-picks[-1].gain:.2f})")
+                f"correlation falls to {after:.2f})")
 
     def confounded(self, label: str) -> list[dict]:
         """Candidates that explain the same residual as `label`: each alone cuts the held-out error

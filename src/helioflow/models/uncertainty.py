@@ -14,10 +14,12 @@ the pseudo-inverse: a direction that changes no image (a facet's plane, the face
 removed from the model by `effective_tensors`) carries no variance, and none of its value is
 reported. A direction the images barely see gets a large variance: the images do not determine it.
 
-**The noise** s_k is white pixel noise read in the fit's residual (diagnosis/noise.py's operator on
+**The noise** s_k is white pixel noise read in the fit's residual (data/noise.py's operator on
 measured - predicted, per level of the prediction): the spot is gone from the residual, so the
 operator no longer sees its curvature (on the sharp ray-traced spots of semi_sphere, reading the
-images themselves put the noise variance 2.4 times above the true heliostat's whole residual).
+images themselves put the noise variance 2.4 times above the true heliostat's whole residual). It
+is taken to be at least NOISE_FLOOR of the peak: noise-free synthetic images (helioflow's own
+default datasets) would otherwise make any numerical residual look like a structured misfit.
 
 **A fit that stopped short or a model that lacks an effect** is confidently wrong: its covariance
 describes the neighbourhood of its end point and says nothing about how far the truth is. What
@@ -29,8 +31,13 @@ for a 2 x 2-facet fit that reached its optimum) and large for a fit in a local m
 drt: 4.7 overall, 1.5-10 per facet, against 1.2-2.6 per facet for the true heliostat, whose kernel
 trace differs from the dataset's ray trace). Then:
 
-- the covariance is multiplied by max(1, structure) (the residual scatters the parameters as noise
-  would: Birge's ratio on the structured residual);
+- the covariance is multiplied by max(1, misfit), the residual's mean square over the noise's (the
+  residual scatters the parameters as noise of its size would: Birge's ratio, what SciPy's
+  `curve_fit` does without `absolute_sigma`);
+- the Gauss-Newton step from the end point, d = -H+ J^T r, is how far the fit stopped short of
+  the optimum of its own images (0 at an optimum, local or not): d d^T is added to the covariance
+  (on sanity_check's noise-free images the fit stops 0.0065 mrad short in slope error, 40 times
+  the sigma the noise floor alone gives);
 - the canting and surface of each facet whose own structure (pixels weighted by its share of the
   flux) exceeds STRUCTURED are reported "not determined", and every spread scalar when the whole
   fit's exceeds SPREADS_STRUCTURED (a width covers for a wrong shape or for what the model leaves
@@ -63,6 +70,8 @@ from helioflow.data.noise import NoiseModel, measure_noise
 from helioflow.physics.effects import REGISTRY, TENSOR_EFFECTS, with_role
 from helioflow.physics.scene import LinearisedScene, Scene, effective_tensors, normalised
 
+NOISE_FLOOR = 1e-3  # pixel noise below this fraction of the peak is not resolved: the images of helioflow's own
+#                    synthetic datasets hold none (kernel traces), and a 10-bit camera's quantisation is about this
 SMOOTH_PX = 5  # box side (pixels) over which `structure` smooths the residual
 STRUCTURED = 2.0  # a facet's structure beyond this: the fit has not found that facet (module docstring)
 SPREADS_STRUCTURED = 1.3  # the whole fit's structure beyond this: its spread scalars are not determined
@@ -82,7 +91,7 @@ class FitUncertainty:
             (tensor entries as the heliostat takes them: `effective_tensors`).
         units: (P,) each one's unit ("mrad", "mm", "" for a factor, "W/m^2" ...).
         values: (P,) the fitted values.
-        covariance: (P, P) in those units, scaled by max(1, structure).
+        covariance: (P, P) in those units, scaled by max(1, misfit).
         misfit: residual mean square over the noise's (~1 for a residual that is noise).
         structure: smoothed residual power over the smoothed noise's (`structure`; ~1 for noise).
         noise_rms: RMS noise of the compared pixels (in the loss' units).
@@ -382,7 +391,9 @@ def fit_uncertainty(state: _State, fitted: list[tuple[str, str]], masks: dict[st
     off = set() if facets is None else {int(f) for f in np.flatnonzero(facets > STRUCTURED)}
     undetermined = [p.name for p in params if (p.kind == "spread" and (overall > SPREADS_STRUCTURED or at_bound(p)))
                     or (p.kind == "tensor" and p.key[0] != "tracking" and p.key[1][0] in off)]
-    free_cov = free_cov * max(1.0, overall) + _systematic(h.numpy(), state, masks, off)
+    free_cov = free_cov * max(1.0, misfit) + _systematic(h.numpy(), state, masks, off)
+    newton = h_plus @ (jacobian.T @ residual.flatten().float()).double().numpy()  # what the fit has left to go
+    free_cov = free_cov + np.outer(newton, newton)
     covariance = entry_of @ free_cov @ entry_of.T
     return FitUncertainty(names, units, values, covariance, misfit, overall, float(variance.mean().sqrt()), facets,
                           undetermined, noise)
@@ -392,9 +403,10 @@ def compared_jacobian(state: _State, params: list[_Parameter],
                       noise: NoiseModel) -> tuple[Tensor, Tensor, tuple[Tensor, Tensor]]:
     """(Jacobian (N*H*W, P) of the prediction as the loss compares it, in the parameters as the
     heliostat takes them (`perturbed`), the pixels' noise std (N*H*W,) at the predicted level
-    (`noise`: in the loss' units), the prediction (images (N, H, W), lost flux (N,)))."""
+    (`noise`: in the loss' units; at least NOISE_FLOOR of the peak), the prediction (images (N, H, W), lost flux (N,)))."""
     base = state.prediction(*state.traced(state.effects, state.tensors))
-    std = noise.std(state.compared(*base)).flatten()
+    compared = state.compared(*base)
+    std = noise.std(compared).flatten().clamp_min(NOISE_FLOOR * float(compared.abs().max()))
     columns = torch.zeros(base[0].numel(), len(params), dtype=torch.float32)
     for k, step, plus, minus in perturbed(state, params):
         columns[:, k] = ((state.compared(*plus) - state.compared(*minus)) / (2.0 * step)).flatten().float()
