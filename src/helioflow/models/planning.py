@@ -59,7 +59,7 @@ def image_information(state: _State, fitted: list[tuple[str, str]], masks: dict[
     out = []
     for start in range(0, len(state.azimuth_deg), CHUNK):
         at = slice(start, start + CHUNK)
-        chunk = _State(**{**vars(state), "azimuth_deg": state.azimuth_deg[at], "elevation_deg": state.elevation_deg[at]})
+        chunk = state.at(state.azimuth_deg[at], state.elevation_deg[at])
         params = parameters(chunk, fitted, masks)
         if [p.name for p in params] != names:
             raise ValueError("the uncertainty was computed for other parameters than this fit's")

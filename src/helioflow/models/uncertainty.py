@@ -60,7 +60,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -74,7 +74,7 @@ NOISE_FLOOR = 1e-3  # pixel noise below this fraction of the peak is not resolve
 #                    synthetic datasets hold none (kernel traces), and a 10-bit camera's quantisation is about this
 SMOOTH_PX = 5  # box side (pixels) over which `structure` smooths the residual
 STRUCTURED = 2.0  # a facet's structure beyond this: the fit has not found that facet (module docstring)
-SPREADS_STRUCTURED = 1.3  # the whole fit's structure beyond this: its spread scalars are not determined
+SPREADS_STRUCTURED = 1.15  # the whole fit's structure beyond this: its spread scalars are not determined
 RELATIVE_STEP = 0.01  # central-difference step of a spread scalar, relative to its value ...
 SPREAD_SCALE = 0.1  # ... or to this (its unit: mrad, px) when it is smaller (a spread fitted at 0)
 EIGEN_CUT = 1e-9  # directions of H below this fraction of its largest eigenvalue change no image
@@ -235,6 +235,12 @@ class _State:
             images, lost = scene.simulate(_neutral_linear(effects), tensors, self.azimuth_deg,
                                           self.elevation_deg, with_lost=True, facets=facets, projected=True)
         return images.double() / self.scale, lost.double() / self.scale
+
+    def at(self, azimuth_deg: Tensor, elevation_deg: Tensor) -> _State:
+        """The same end point at other sun positions (the linearised scene linearised there)."""
+        fast = None if self.fast is None else LinearisedScene.of(self.scene, self.effects, self.tensors,
+                                                                 azimuth_deg, elevation_deg)
+        return replace(self, azimuth_deg=azimuth_deg, elevation_deg=elevation_deg, fast=fast)
 
     def prediction(self, images: Tensor, lost: Tensor, gain: float | None = None,
                    offset: float | None = None) -> tuple[Tensor, Tensor]:
