@@ -276,7 +276,7 @@ class Diagnosis:
                 alike += [c for c in self.swapped(r["effect"], selected) if c["effect"] not in seen]
                 seen = {c["effect"] for c in alike}
                 alike += [c for c in self.correlated(r["effect"], selected) if c["effect"] not in seen]
-            for c in alike:  # the correlation of the pair at a joint fit, and what separates them, where one has a covariance
+            for c in alike:  # where a joint fit has a covariance: the pair's correlation, and what separates them
                 found = self.correlation(r["effect"], c["effect"], selected) if "correlation" not in c else None
                 if found is not None:
                     c["correlation"] = round(found[0], 4)
@@ -332,7 +332,8 @@ class Diagnosis:
                 continue
             r, key = found
             rest = sorted(key - {label, other})
-            out.append({"effect": other, "relative_reduction": 1.0 - self.error([*rest, other]) / max(self.error(rest), 1e-30),
+            cut = 1.0 - self.error([*rest, other]) / max(self.error(rest), 1e-30)
+            out.append({"effect": other, "relative_reduction": cut,
                         "given": rest, "heldout_error": self.error([*rest, other]), "correlation": round(r, 4),
                         "separated_by": self.separating_images(key, label, other)})
         return out

@@ -52,8 +52,8 @@ def image_information(state: _State, fitted: list[tuple[str, str]], masks: dict[
                       uncertainty: FitUncertainty) -> Tensor:
     """(M, P, P) the information each of the M images at `state`'s sun positions adds about the
     parameters of the fit's `uncertainty`, as the fit compares images, with the noise read in its
-    residual (times the misfit where the residual is larger: the covariance's own scale). Pixels whose noise model says no noise (an exactly dark pixel of a noise-free image)
-    get the smallest noise seen elsewhere: no image is worth infinitely much."""
+    residual (times the misfit where the residual is larger: the covariance's own scale), at least
+    uncertainty.NOISE_FLOOR of the peak: no image is worth infinitely much."""
     names, noise = uncertainty.names, uncertainty.noise
     scale = max(1.0, uncertainty.misfit)  # the covariance's own noise: the residual's, where it exceeds the noise
     out = []
@@ -64,8 +64,7 @@ def image_information(state: _State, fitted: list[tuple[str, str]], masks: dict[
         if [p.name for p in params] != names:
             raise ValueError("the uncertainty was computed for other parameters than this fit's")
         columns, std, _ = compared_jacobian(chunk, params, noise)
-        floor = float(std[std > 0].min()) if bool((std > 0).any()) else 1.0
-        weighted = (columns.double() / std.clamp_min(floor)[:, None]).reshape(len(chunk.azimuth_deg), -1, len(params))
+        weighted = (columns.double() / std.clamp_min(1e-30)[:, None]).reshape(len(chunk.azimuth_deg), -1, len(params))
         out.append(torch.einsum("npi,npj->nij", weighted, weighted) / scale)
     return torch.cat(out)
 
