@@ -27,9 +27,9 @@ tells it is the residual's **structure**: noise is white at the pixel scale, whi
 a missing effect leaves a residual that is smooth over several pixels. Smoothed over SMOOTH_PX x
 SMOOTH_PX pixels, white noise keeps 1 / SMOOTH_PX^2 of its power and a smooth residual all of it;
 `structure`, the smoothed residual's power over what the noise alone keeps, is ~1 for noise (0.9-1.0
-for a 2 x 2-facet fit that reached its optimum) and large for a fit in a local minimum (semi_sphere's
-drt: 4.7 overall, 1.5-10 per facet, against 1.2-2.6 per facet for the true heliostat, whose kernel
-trace differs from the dataset's ray trace). Then:
+for a 2 x 2-facet fit that reached its optimum; noise then read in the images) and large for a fit
+in a local minimum (semi_sphere's drt: 4.3 overall, 1.4-9.3 per facet, against 1.2-2.6 per facet
+for the true heliostat, whose kernel trace differs from the dataset's ray trace). Then:
 
 - the covariance is multiplied by max(1, misfit), the residual's mean square over the noise's (the
   residual scatters the parameters as noise of its size would: Birge's ratio, what SciPy's
@@ -135,11 +135,6 @@ class FitUncertainty:
         order = np.argsort(-np.abs(r[i, j][keep]))[:count]
         return [{"a": self.names[a], "b": self.names[b], "r": round(float(r[a, b]), 4)}
                 for a, b in zip(i[keep][order], j[keep][order])]
-
-    def of(self, prefix: str) -> tuple[np.ndarray, np.ndarray]:
-        """(values, sigma) of the parameters whose name starts with `prefix`, in order."""
-        at = [k for k, n in enumerate(self.names) if n.startswith(prefix)]
-        return self.values[at], self.sigma[at]
 
     def as_json(self) -> dict:
         """Every scalar with its sigma and unit; per tensor the sigma in its shape; the misfit, the
