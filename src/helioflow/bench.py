@@ -17,7 +17,8 @@ field: a flux map of 100, 300 and 1000 heliostats (`--sizes`) (radially staggere
 tracking errors) on an 8 m x 8 m receiver at 128 x 128, Buie sun CSR 0.1, slope error 1.5 mrad,
 clear-day attenuation, shading and blocking; one sun position. Each field in a fresh process:
 wall time of building the geometry and of the flux map (after a warm-up map of 10 heliostats that
-fills the footprint tables), peak RSS beside the RSS after imports, and the power budget.
+fills the footprint tables), peak RSS beside the RSS after imports, and the power budget. `--device cuda`
+runs it on a GPU (peak GPU memory added); `--json PATH` writes the figures to PATH as well.
 
 fit: drt's fit of a dataset's heliostat from its design (default: the default experiment's
 semi_sphere, 24 facets; `snakemake -j2 results/default/datasets/semi_sphere.h5` makes it), with the
@@ -32,6 +33,7 @@ amplitude, as the recovery rule computes it).
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import multiprocessing as mp
 import resource
@@ -40,6 +42,8 @@ import time
 import torch
 
 from helioflow.data.surfaces import HeliostatSpec, true_heliostat
+from helioflow.device import resolve_device
+from helioflow.io import write_text_atomic
 from helioflow.physics.effects import resolve
 from helioflow.physics.field import FieldHeliostats, field_flux, flat_receiver
 from helioflow.physics.layout import min_spacing, radial_staggered
@@ -162,9 +166,9 @@ FIELD_SUN_DEG = (-30.0, 35.0)
 TOWER_M = 60.0
 
 
-def field_scene(n: int):
+def field_scene(n: int, device: str | torch.device = "cpu"):
     """(FieldHeliostats float32, receiver, physics of heliostat 0, azimuth (1,), elevation (1,)) of the
-    field benchmark with n heliostats."""
+    field benchmark with n heliostats, on `device`."""
     facet_w, facet_h, gap = 1.6, 1.25, 0.05
     spacing = min_spacing(2 * facet_w + gap, 2 * facet_h + gap, clearance=1.0)
     positions = radial_staggered(n, spacing, min_radius=40.0, height=2.0)
@@ -178,45 +182,68 @@ def field_scene(n: int):
             dni=1000.0)
         for i, p in enumerate(positions)
     ]
-    field = FieldHeliostats.stack([p.heliostat for p in physics], cells_per_side=8, dtype=torch.float32)
-    receiver = flat_receiver(aim, [0.0, 1.0, -0.45], 8.0, 8.0, (128, 128), dtype=torch.float32)
-    az, el = (torch.tensor([math.radians(a)]) for a in FIELD_SUN_DEG)
+    field = FieldHeliostats.stack([p.heliostat.to(device, torch.float64) for p in physics], 8, torch.float32)
+    receiver = flat_receiver(aim.to(device), torch.tensor([0.0, 1.0, -0.45], device=device), 8.0, 8.0, (128, 128),
+                             dtype=torch.float32)
+    az, el = (torch.tensor([math.radians(a)], device=device) for a in FIELD_SUN_DEG)
     return field, receiver, physics[0], az, el
 
 
-def _field_worker(n: int, threads: int, queue) -> None:
+def _field_worker(n: int, threads: int, device: str, queue) -> None:
     torch.set_num_threads(threads)
+    device = resolve_device(device)
+    cuda = device.type == "cuda"
     base = _rss_mb()
     start = time.perf_counter()
-    field, receiver, physics, az, el = field_scene(n)
+    field, receiver, physics, az, el = field_scene(n, device)
     setup = time.perf_counter() - start
     options = {"blocking_shading": physics.blocking_shading}
     with torch.no_grad():
-        field_flux(field_scene(10)[0], receiver, az, el, physics.optics, **options)  # warm-up
+        field_flux(field_scene(10, device)[0], receiver, az, el, physics.optics, **options)  # warm-up
+        if cuda:
+            torch.cuda.synchronize(device)
+            torch.cuda.reset_peak_memory_stats(device)
         start = time.perf_counter()
         result = field_flux(field, receiver, az, el, physics.optics, **options)
+        if cuda:
+            torch.cuda.synchronize(device)
         seconds = time.perf_counter() - start
     totals = {k: v.item() for k, v in result.totals().items()}
-    queue.put((setup, seconds, _rss_mb(), base, totals))
+    device_mb = torch.cuda.max_memory_allocated(device) / 2**20 if cuda else None
+    queue.put((setup, seconds, _rss_mb(), base, device_mb, totals))
 
 
-def field(threads: int, sizes: tuple[int, ...] = FIELD_SIZES) -> None:
-    print(f"helioflow field benchmark: 128x128 receiver, {threads} threads, torch {torch.__version__}")
+def field(threads: int, sizes: tuple[int, ...] = FIELD_SIZES, device: str = "cpu", json_path: str | None = None
+          ) -> None:
+    """The `field` benchmark (module docstring); with json_path also written there as JSON."""
+    name = str(resolve_device(device))
+    print(f"helioflow field benchmark: 128x128 receiver, {threads} threads, torch {torch.__version__}, {name}")
     print(f"{'heliostats':>10} {'setup s':>8} {'flux map s':>10} {'peak RSS MB':>12} {'after imports MB':>17}"
-          f" {'shaded':>7} {'blocked':>8} {'attenuated':>10} {'intercept':>9}")
+          f" {'shaded':>7} {'blocked':>8} {'attenuated':>10} {'intercept':>9}"
+          + (f" {'peak GPU MB':>11}" if name.startswith("cuda") else ""))
     ctx = mp.get_context("spawn")
+    rows = []
     for n in sizes:
         queue = ctx.Queue()
-        proc = ctx.Process(target=_field_worker, args=(n, threads, queue))
+        proc = ctx.Process(target=_field_worker, args=(n, threads, device, queue))
         proc.start()
-        setup, seconds, peak, base, t = queue.get()
+        setup, seconds, peak, base, device_mb, t = queue.get()
         proc.join()
         reflected = t["reflected"]
+        row = {"heliostats": n, "setup_s": setup, "flux_map_s": seconds, "peak_rss_mb": peak,
+               "after_imports_mb": base, "peak_gpu_mb": device_mb, "shaded": t["shaded"] / t["incident"],
+               "blocked": t["blocked"] / reflected, "attenuated": t["attenuated"] / reflected,
+               "intercept": t["on_receiver"] / reflected, "budget_w": t}
+        rows.append(row)
         print(f"{n:>10} {setup:>8.1f} {seconds:>10.1f} {peak:>12.0f} {base:>17.0f}"
-              f" {t['shaded'] / t['incident']:>7.1%} {t['blocked'] / reflected:>8.1%}"
-              f" {t['attenuated'] / reflected:>10.1%} {t['on_receiver'] / reflected:>9.1%}")
+              f" {row['shaded']:>7.1%} {row['blocked']:>8.1%} {row['attenuated']:>10.1%} {row['intercept']:>9.1%}"
+              + (f" {device_mb:>11.0f}" if device_mb is not None else ""))
     print("shaded: of the incident sunlight; blocked, attenuated and intercept (on the receiver): of the "
           "reflected power")
+    if json_path:
+        record = {"benchmark": "field", "receiver_pixels": [128, 128], "threads": threads, "device": name,
+                  "torch": torch.__version__, "sun_deg": list(FIELD_SUN_DEG), "fields": rows}
+        write_text_atomic(json_path, json.dumps(record, indent=1) + "\n")
 
 
 def fit(dataset: str, heliostat: str, threads: int) -> None:
@@ -287,12 +314,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--reference-rays", type=int, default=10**8, help="raytrace: rays per reference image")
     ap.add_argument("--sizes", type=int, nargs="+", default=FIELD_SIZES, help="field: heliostats per field")
+    ap.add_argument("--device", default="cpu", help="field: cpu, cuda or auto")
+    ap.add_argument("--json", metavar="PATH", help="field: also write the figures to PATH as JSON")
     ap.add_argument("--dataset", default="results/default/datasets/semi_sphere.h5", help="fit: the dataset")
     ap.add_argument("--heliostat", default="results/default/surfaces/multi_facet.h5",
                     help="fit: the true heliostat the dataset was traced from")
     args = ap.parse_args(argv)
     if args.name == "field":
-        field(args.threads, tuple(args.sizes))
+        field(args.threads, tuple(args.sizes), args.device, args.json)
     elif args.name == "fit":
         fit(args.dataset, args.heliostat, args.threads)
     else:

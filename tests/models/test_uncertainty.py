@@ -1,5 +1,5 @@
 """How sure a fit is (models/uncertainty.py): the reported sigma against the scatter of the fit over
-noise draws, the predicted centroid's sigma likewise, and a fit that is off (a facet's surface
+noise draws, the predicted centroid's and flux's sigma likewise, and a fit that is off (a facet's surface
 turned over) flagged instead of reported with a small sigma."""
 
 import numpy as np
@@ -38,7 +38,7 @@ def test_reported_sigma_matches_the_scatter_of_the_fit_over_noise_draws():
         clean = s.simulate(world, truth, az, el)
     scale = float(clean.max())
     settings = FitSettings(steps=60, rounds=2, gauss_newton_steps=3, search_iterations=20)
-    values, sigmas, centroids, centroid_sigmas = [], [], [], []
+    values, sigmas, centroids, centroid_sigmas, fluxes, flux_sigmas = [], [], [], [], [], []
     held_az, held_el = torch.tensor([35.0]), torch.tensor([50.0])
     for seed in range(8):
         data = Measurements(noisy(clean / scale, seed), az, el, scale)
@@ -47,9 +47,11 @@ def test_reported_sigma_matches_the_scatter_of_the_fit_over_noise_draws():
         assert u.undetermined == [] and u.structure < STRUCTURED
         values.append(u.values)
         sigmas.append(u.sigma)
-        spot = spot_spread(s, fit, held_az, held_el, scale, "absolute")
+        spot = spot_spread(s, fit, held_az, held_el, scale, "absolute", with_flux=True)
         centroids.append(spot["centroid_mrad"][0].numpy())
         centroid_sigmas.append(spot["centroid_sigma_mrad"][0].numpy())
+        fluxes.append(spot["flux"][0].numpy())
+        flux_sigmas.append(spot["flux_sigma"][0].numpy())
     scatter, reported = np.std(values, 0, ddof=1), np.mean(sigmas, 0)
     # 8 draws: the sample std is within a factor 0.55..1.5 of the true one at 95 %
     assert np.all(scatter / reported > 0.5) and np.all(scatter / reported < 1.6), (scatter, reported)
@@ -59,6 +61,12 @@ def test_reported_sigma_matches_the_scatter_of_the_fit_over_noise_draws():
     assert np.mean(np.abs(z) < 1.96) > 0.85  # coverage of the 95 % interval
     c_scatter, c_reported = np.std(centroids, 0, ddof=1), np.mean(centroid_sigmas, 0)
     assert np.all(c_scatter / c_reported > 0.5) and np.all(c_scatter / c_reported < 1.6), (c_scatter, c_reported)
+    # the flux per pixel: where the spot is brighter than a tenth of its peak, the reported sigma is
+    # the scatter of the fitted flux over the draws (per pixel, 8 draws each: compared by the median)
+    f_scatter, f_reported = np.std(fluxes, 0, ddof=1), np.mean(flux_sigmas, 0)
+    bright = np.mean(fluxes, 0) > 0.1 * np.mean(fluxes, 0).max()
+    assert bright.sum() > 50
+    assert np.median(f_scatter[bright] / f_reported[bright]) == pytest.approx(1.0, abs=0.3)
 
 
 def test_a_facet_left_turned_over_is_flagged_not_determined_and_the_rest_is_not():

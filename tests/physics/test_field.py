@@ -2,7 +2,7 @@
 published Vittitoe-Biggs values, the power budget, and agreement with the single-heliostat tracer."""
 
 import math
-from dataclasses import replace
+from dataclasses import fields, replace
 
 import numpy as np
 import pytest
@@ -133,6 +133,36 @@ def test_one_heliostat_agrees_with_the_kernel_tracer(sun, position, size):
     assert shift < 0.1 * receiver.pixel_size[0]
     psnr = 10 * math.log10(ref.max().item() ** 2 / ((img - ref) ** 2).mean().item())
     assert psnr > 45.0
+
+
+def test_footprints_sampled_once_per_cell_where_smooth_give_the_supersampled_map(monkeypatch):
+    """The far heliostats' footprints, smooth on the scale of their cells, are sampled once per cell
+    (field.SMOOTH_CELLS); the map stays that of footprints supersampled everywhere to within 0.5 % of
+    the peak at every pixel and 60 dB PSNR (measured: 0.26 %, 70 dB; the kernel tracer itself agrees
+    with Monte Carlo to 45-56 dB), the budget to 1e-4 of the reflected power."""
+    from helioflow.bench import field_scene
+    from helioflow.physics import field as field_module
+
+    field, receiver, physics, az, el = field_scene(1000)
+    far = torch.arange(600, 1000, 3)  # every third of the outer rings, and a few nearer ones
+    field = FieldHeliostats(*[value[far] if isinstance(value, torch.Tensor) else tuple(value[i] for i in far)
+                              for value in (getattr(field, f.name) for f in fields(field))])
+    sampled = []
+    footprint = field_module.footprint
+    monkeypatch.setattr(field_module, "footprint", lambda *a: sampled.append(a[-1]) or footprint(*a))
+    with torch.no_grad():
+        smooth = field_flux(field, receiver, az, el, physics.optics)
+        monkeypatch.setattr(field_module, "SMOOTH_CELLS", math.inf)
+        every = field_flux(field, receiver, az, el, physics.optics)
+    assert 1 in sampled and sampled.count(1) < len(sampled)  # both samplings were used
+    peak = every.flux.max()
+    assert (smooth.flux - every.flux).abs().max() < 5e-3 * peak
+    psnr = 10 * math.log10(peak.item() ** 2 / ((smooth.flux - every.flux) ** 2).mean().item())
+    assert psnr > 60.0
+    for term in BUDGET_TERMS:
+        # the spill is a difference of large terms: compared on the scale of the reflected power
+        reflected = every.totals()["reflected"].item()
+        assert smooth.totals()[term].item() == pytest.approx(every.totals()[term].item(), abs=1e-4 * reflected)
 
 
 def test_spill_of_a_spot_on_the_receiver_edge_agrees_with_monte_carlo():

@@ -12,7 +12,12 @@ range, ~1 %), and each heliostat's spot is computed on its own grid of WINDOW x 
 covers the spot's reach on the receiver, with cells an integer number k of receiver pixels wide,
 then interpolated bilinearly onto the receiver pixels. Near heliostats (small spots) get k = 1,
 the receiver's own pixels, which reproduces raytrace's kernel image; far ones, whose spots are
-smooth on the scale of the slope-error blur, get coarser cells. For one heliostat the field tracer
+smooth on the scale of the slope-error blur, get coarser cells. The footprint is evaluated only as
+far as it reaches (heliostats are traced in chunks of similar slant range, so a chunk shares that
+extent), averaged over q x q points per cell where it is sharp on the scale of a cell and sampled at
+the cell centre where its finest structure (sun.finest_scale) spans SMOOTH_CELLS cells or more
+(tests/physics/test_field.py: 70 dB against supersampling everywhere); the interpolation onto the
+receiver is separable, so a chunk's spots sum into the map as one matrix product. For one heliostat the field tracer
 and raytrace.trace(splat="kernel") agree to 2e-4 in power on the receiver and 45-56 dB PSNR
 (tests/physics/test_field.py); both blur by the slope error isotropically (see raytrace). Shading
 and blocking act on whole cells (their central rays); the sun's finite size (penumbra), the
@@ -24,8 +29,9 @@ rectangle before the receiver. Only neighbours that can be hit are tested: for h
 direction d (the sun, or h -> its aim point) a neighbour g can intercept a ray from h only if its
 pivot lies within radius_h + radius_g (+ the widening of the beam towards the receiver) of the line
 through h's pivot along d (radius = bounding sphere of the mirror about its pivot); of those the
-`neighbours` nearest along d are kept. The filter is O(N^2) per sun position in row chunks (a few
-ms for 1000 heliostats); the ray tests are O(N * cells * neighbours * facets).
+`neighbours` nearest along d are kept; the pairs are found with a k-d tree (O(N log N)). A cell's
+ray is tested against a candidate's facets only if it passes through the candidate's bounding
+sphere, so the ray tests grow with the rays that come near a neighbour.
 
 Power budget (per heliostat and sun position, W), with DNI the direct normal irradiance and
 cos_i the cosine of incidence of the sunlight on each cell:
@@ -60,11 +66,19 @@ from helioflow.physics.heliostat import (
     joint_rotation,
     sample_surface,
 )
-from helioflow.physics.raytrace import Optics, density_lookup, deposit, footprint
-from helioflow.physics.sun import support_radius
+from helioflow.physics.raytrace import (
+    FOOTPRINT_SUPERSAMPLING,
+    Optics,
+    _fft_size,
+    density_lookup,
+    deposit,
+    footprint,
+)
+from helioflow.physics.sun import finest_scale, support_radius
 from helioflow.physics.target import Target
 
-WINDOW = 64  # cells per side of a heliostat's spot grid
+WINDOW = 64  # at most this many cells per side of a heliostat's spot grid
+SMOOTH_CELLS = 2.0  # footprints whose finest structure spans this many cells are sampled once per cell
 BUDGET_TERMS = ("incident", "shaded", "reflected", "blocked", "attenuated", "on_receiver", "spilled")
 
 
@@ -215,7 +229,7 @@ def field_flux(
     blocking_shading: bool = True,
     aim_points: Tensor | None = None,
     neighbours: int = 8,
-    chunk: int = 16,
+    chunk: int = 32,
     spots: Sequence[int] = (),
 ) -> FieldFlux:
     """Flux maps of a whole field on a flat receiver, one per sun position, and the power budget.
@@ -260,10 +274,10 @@ def _trace_sun(field, receiver, sun, aim, optics, blocking_shading, neighbours, 
     rot = orientations(field, sun, aim)  # (N, 3, 3)
     rects = _facet_rectangles(field, rot)
     shade_idx = block_idx = None
+    distance = (aim - field.position).norm(dim=-1)
     if blocking_shading and n > 1:
         k = min(neighbours, n - 1)
         # a reflected ray ends on the receiver: its beam widens from the mirror to the receiver's size
-        distance = (aim - field.position).norm(dim=-1)
         half_diagonal = math.hypot(receiver.width, receiver.height) / 2
         shade_idx = _candidates(field.position, sun.expand(n, 3), field.radius, torch.zeros_like(distance), k)
         block_idx = _candidates(field.position, normalize(aim - field.position), field.radius,
@@ -271,14 +285,16 @@ def _trace_sun(field, receiver, sun, aim, optics, blocking_shading, neighbours, 
     image = torch.zeros(receiver.resolution, dtype=field.position.dtype, device=field.position.device)
     single = image.new_zeros(len(wanted), *receiver.resolution)
     budget = {key: torch.zeros(n, dtype=image.dtype, device=image.device) for key in BUDGET_TERMS}
+    # chunks of heliostats at similar distances share the footprint's extent (see _convolve_footprint)
+    order = torch.argsort(distance)
     for start in range(0, n, chunk):
-        rows = torch.arange(start, min(start + chunk, n), device=image.device)
+        rows = order[start:start + chunk]
         candidates = None if shade_idx is None else tuple((i[rows], v[rows])
                                                            for i, v in (shade_idx, block_idx))
-        part, terms = _trace_chunk(field, rows, rot, rects, receiver, sun, aim, optics, candidates)
-        image = image + part.sum(0)
+        spots, terms = _trace_chunk(field, rows, rot, rects, receiver, sun, aim, optics, candidates)
+        image = image + spots.total()
         k, j = torch.nonzero(wanted[:, None] == rows[None, :], as_tuple=True)
-        single[k] = part[j]
+        single[k] = spots.images(j)
         for key, value in terms.items():
             budget[key][rows] = value
     return image, budget, single
@@ -306,23 +322,37 @@ def _candidates(origin: Tensor, direction: Tensor, radius: Tensor, widening: Ten
     Returns:
         index (N, k) long and valid (N, k) bool (an invalid entry's index is meaningless).
 
-    The pairs tested are found with a k-d tree, in O(N log N): a qualifying neighbour lies within
-    along_max (1 + widening) + 2 reach_max of the pivot, where along_max = (reach_max + dz) /
-    (direction_z - widening) (dz: the largest difference of pivot heights), because the bundle rises
-    by direction_z per metre along it while the neighbour's pivot can lie at most dz + reach above;
-    rows whose bundle does not rise (direction_z <= widening) test every heliostat.
+    The pairs tested are found with a k-d tree, in O(N log N): a qualifying neighbour lies at an
+    along of at most along_max = (reach_max + dz) / (direction_z - widening) (dz: the largest
+    difference of pivot heights), because the bundle rises by direction_z per metre along it while
+    the neighbour's pivot can lie at most dz + reach above (reach_max: the largest radius_h + radius_g),
+    and never farther than the field's extent. The part of the bundle from -reach_max to there is
+    covered by balls centred on its line, one per 2 reach_max of length, each holding its stretch of
+    the widening bundle: the pivots in them are the pairs tested, about as many as lie near the
+    line, however far it runs across the field.
     """
     from scipy.spatial import cKDTree
 
     n = len(origin)
     reach_max = 2 * float(radius.max())
-    dz = float(origin[:, 2].max() - origin[:, 2].min())
-    rise = (direction[:, 2] - widening).double()
-    along_max = (reach_max + dz) / rise.clamp_min(1e-12)
-    ball = torch.where(rise > 1e-6, along_max * (1 + widening.double()) + 2 * reach_max,
-                       torch.full_like(rise, math.inf))
     points = origin.detach().double().cpu().numpy()
-    near = cKDTree(points).query_ball_point(points, r=np.minimum(ball.cpu().numpy(), 1e300), return_sorted=False)
+    line, grow = direction.detach().double().cpu().numpy(), widening.detach().double().cpu().numpy()
+    extent = float(np.linalg.norm(points.max(0) - points.min(0)))
+    rise = line[:, 2] - grow
+    along_max = np.full(n, extent)
+    rising = rise > 1e-6
+    along_max[rising] = np.minimum((reach_max + np.ptp(points[:, 2])) / rise[rising], extent)
+    spacing = 2 * reach_max
+    balls = np.ceil((along_max + reach_max) / spacing).astype(np.int64)  # (N,) balls per row, >= 1
+    row = np.repeat(np.arange(n), balls)
+    centre = -reach_max + spacing * (np.arange(len(row)) - np.repeat(np.cumsum(balls) - balls, balls) + 0.5)
+    perp = reach_max + np.maximum(centre + spacing / 2, 0.0) * grow[row]  # the bundle's radius at the ball's far end
+    found = cKDTree(points).query_ball_point(points[row] + centre[:, None] * line[row],
+                                             r=np.hypot(perp, spacing / 2) * (1 + 1e-9), return_sorted=False)
+    near = [set() for _ in range(n)]
+    for h, hits in zip(row.tolist(), found):
+        near[h].update(hits)
+    near = [list(s) for s in near]
     index = torch.zeros(n, k, dtype=torch.long, device=origin.device)
     valid = torch.zeros(n, k, dtype=torch.bool, device=origin.device)
     order = sorted(range(n), key=lambda h: len(near[h]))
@@ -349,32 +379,46 @@ def _candidates(origin: Tensor, direction: Tensor, radius: Tensor, widening: Ten
     return index, valid
 
 
-def _hits(origin: Tensor, direction: Tensor, rects, index: Tensor, valid: Tensor) -> Tensor:
+def _hits(origin: Tensor, direction: Tensor, field: FieldHeliostats, rects, index: Tensor, valid: Tensor
+          ) -> Tensor:
     """Whether each ray hits one of the candidate facet rectangles (either side) at t > 0.
+
+    Only the rays that pass through a candidate's bounding sphere (field.radius about its pivot) are
+    tested against its facets: the work grows with the rays that come near a neighbour, not with
+    rays x candidates x facets.
 
     Args:
         origin: (B, P, 3) ray origins (m); direction: (B, P, 3) unit directions.
-        rects: facet rectangles of all heliostats (see _facet_rectangles).
+        field: the heliostats (pivots and radii); rects: their facet rectangles (_facet_rectangles).
         index, valid: (B, K) candidate heliostats.
 
     Returns:
         (B, P) bool.
     """
-    centre, axes, half = (r[index] for r in rects)  # (B, K, F, 3), (B, K, F, 3, 3), (B, K, F, 2)
-    # ray origin and direction, and the facet centre, on the facet axes (right, up, normal)
-    o = torch.einsum("bpi,bkfij->bpkfj", origin, axes)  # (B, P, K, F, 3)
-    d = torch.einsum("bpi,bkfij->bpkfj", direction, axes)
-    c = torch.einsum("bkfi,bkfij->bkfj", centre, axes)[:, None]  # (B, 1, K, F, 3)
+    hits = torch.zeros(origin.shape[:2], dtype=origin.dtype, device=origin.device)
+    pair, slot = torch.nonzero(valid, as_tuple=True)  # (M,) ray bundle b and its candidate
+    other = index[pair, slot]
+    rel = field.position[other, None, :] - origin[pair]  # (M, P, 3) candidate pivot from each ray's origin
+    along = (rel * direction[pair]).sum(-1)
+    radius = field.radius[other, None]
+    near = (along > -radius) & ((rel * rel).sum(-1) - along**2 < radius**2)  # (M, P)
+    which, cell = torch.nonzero(near, as_tuple=True)  # (Q,) ray-candidate pairs to test facet by facet
+    bundle, other = pair[which], other[which]
+    centre, axes, half = (r[other] for r in rects)  # (Q, F, 3), (Q, F, 3, 3), (Q, F, 2)
+    # ray origin and direction relative to the facet centre, on the facet axes (right, up, normal)
+    o = torch.einsum("qfi,qfij->qfj", origin[bundle, cell][:, None, :] - centre, axes)  # (Q, F, 3)
+    d = torch.einsum("qi,qfij->qfj", direction[bundle, cell], axes)
     denom = d[..., 2]
     parallel = denom.abs() <= 1e-12
-    t = (c[..., 2] - o[..., 2]) / torch.where(parallel, torch.ones_like(denom), denom)
-    local = (o[..., :2] + t[..., None] * d[..., :2] - c[..., :2]).abs()
-    inside = (local <= half[:, None]).all(-1)
-    return (inside & ~parallel & (t > 1e-9) & valid[:, None, :, None]).flatten(2).any(-1)
+    t = -o[..., 2] / torch.where(parallel, torch.ones_like(denom), denom)
+    inside = ((o[..., :2] + t[..., None] * d[..., :2]).abs() <= half).all(-1)
+    hit = (inside & ~parallel & (t > 1e-9)).any(-1)  # (Q,)
+    hits.index_put_((bundle, cell), hit.to(hits.dtype), accumulate=True)
+    return hits > 0
 
 
 def _trace_chunk(field, rows, rot, rects, receiver, sun, aim, optics, candidates):
-    """Heliostats `rows` ((B,) long): their spots (B, H, W) (W/m^2) and {term: (B,) W}."""
+    """Heliostats `rows` ((B,) long): their spots (_Spots, W/m^2) and {term: (B,) W}."""
     r = rot[rows]
     points = field.position[rows, None, :] + torch.einsum("bij,bpj->bpi", r, field.points[rows])  # (B, P, 3)
     normals = torch.einsum("bij,bpj->bpi", r, field.normals[rows])
@@ -385,16 +429,16 @@ def _trace_chunk(field, rows, rot, rects, receiver, sun, aim, optics, candidates
     free = torch.ones_like(lit)
     if candidates is not None:
         (shade_index, shade_valid), (block_index, block_valid) = candidates
-        lit = ~_hits(points, sun.expand_as(points), rects, shade_index, shade_valid)
-        free = ~_hits(points, ray, rects, block_index, block_valid)
+        lit = ~_hits(points, sun.expand_as(points), field, rects, shade_index, shade_valid)
+        free = ~_hits(points, ray, field, rects, block_index, block_valid)
     reflected = optics.reflectivity * incident * lit
     sent = reflected * free
     transmittance = torch.ones(len(rows), dtype=sent.dtype, device=sent.device)
     if optics.transmittance is not None:
         transmittance = optics.transmittance((aim[rows] - field.position[rows]).norm(dim=-1))
     arriving = sent * transmittance[:, None]
-    spots = _spots(points, ray, arriving, receiver, optics)  # (B, H, W)
-    on_receiver = spots.sum((-2, -1)) * receiver.pixel_area
+    spots = _spots(points, ray, arriving, receiver, optics)
+    on_receiver = spots.sums() * receiver.pixel_area
     terms = {
         "incident": incident.sum(-1),
         "shaded": (incident * ~lit).sum(-1),
@@ -407,8 +451,37 @@ def _trace_chunk(field, rows, rot, rects, receiver, sun, aim, optics, candidates
     return spots, terms
 
 
-def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics: Optics) -> Tensor:
-    """Flux (B, H, W) W/m^2 of B heliostats' cells on the receiver (see the module docstring).
+@dataclass
+class _Spots:
+    """B heliostats' flux on the receiver, each kept on its own grid of C x C cells (C <= WINDOW) and
+    rendered by bilinear interpolation: spot_b = row_weights_b @ cells_b @ col_weights_b^T.
+
+    Attributes:
+        cells: (B, C, C) flux (W/m^2) at the cell centres.
+        row_weights: (B, H, C) and col_weights: (B, W, C) interpolation weights of the
+            receiver's pixel centres (zero beyond the first and last cell centres).
+    """
+
+    cells: Tensor
+    row_weights: Tensor
+    col_weights: Tensor
+
+    def images(self, which: Tensor) -> Tensor:
+        """(K, H, W) spots of the heliostats `which` ((K,) long)."""
+        return self.row_weights[which] @ self.cells[which] @ self.col_weights[which].transpose(1, 2)
+
+    def total(self) -> Tensor:
+        """(H, W) the sum of the B spots, as one matrix product (no (B, H, W) intermediate)."""
+        rows = self.row_weights.permute(1, 0, 2).flatten(1)  # (H, B C)
+        return rows @ (self.cells @ self.col_weights.transpose(1, 2)).flatten(0, 1)
+
+    def sums(self) -> Tensor:
+        """(B,) each spot summed over the receiver's pixels (W/m^2)."""
+        return torch.einsum("bc,bcd,bd->b", self.row_weights.sum(1), self.cells, self.col_weights.sum(1))
+
+
+def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics: Optics) -> _Spots:
+    """Flux of B heliostats' cells on the receiver (see the module docstring).
 
     Args:
         points: (B, P, 3) cell centres (m); ray: (B, P, 3) unit central reflected rays;
@@ -431,25 +504,29 @@ def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics:
     path = (weight * t).sum(-1)
     reach = support_radius(optics.sun, optics.slope_error) * path / unit[:, 0].abs().clamp_min(1e-6)  # (B,) m
     lit = power > 0
-    (x0, kx), (y0, ky) = _window(x, lit, reach / pw, cols), _window(y, lit, reach / ph, rows)
+    (x0, kx, nx), (y0, ky, ny) = _window(x, lit, reach / pw, cols), _window(y, lit, reach / ph, rows)
+    size = int(max(nx.max(), ny.max()))  # the chunk's grid: as many cells as its widest window needs
     # Deposit: padded grid coordinates, (1, 1) = centre of the first cell.
-    cells = deposit((x - x0) / kx + 0.5, (y - y0) / ky + 0.5, power, (WINDOW, WINDOW))  # (B, WINDOW, WINDOW)
+    cells = deposit((x - x0) / kx + 0.5, (y - y0) / ky + 0.5, power, (size, size))  # (B, C, C)
     cell = torch.cat((kx * pw, ky * ph), -1)  # (B, 2) cell width, height (m)
     if optics.sun.kind == "point" and optics.slope_error == 0:
         flux = cells / (cell[:, 0] * cell[:, 1])[:, None, None]  # the beam does not spread
     else:
         flux = _convolve_footprint(cells, unit, path, cell, reach, optics)
-    # Bilinear interpolation of the cell averages at the receiver's pixel centres (align_corners:
-    # -1 and 1 are the centres of the first and last cells).
-    gx = ((torch.arange(cols, dtype=x.dtype, device=x.device) + 0.5 - x0) / kx - 0.5) * 2 / (WINDOW - 1) - 1
-    gy = ((torch.arange(rows, dtype=x.dtype, device=x.device) + 0.5 - y0) / ky - 0.5) * 2 / (WINDOW - 1) - 1
-    grid = torch.stack(torch.broadcast_tensors(gx[:, None, :], gy[:, :, None]), dim=-1)  # (B, H, W, 2)
-    return torch.nn.functional.grid_sample(flux[:, None], grid, mode="bilinear", padding_mode="zeros",
-                                           align_corners=True)[:, 0]
+    return _Spots(flux, _interpolation(rows, y0, ky, size), _interpolation(cols, x0, kx, size))
 
 
-def _window(x: Tensor, lit: Tensor, reach: Tensor, pixels: int) -> tuple[Tensor, Tensor]:
-    """Along one receiver axis, each spot's grid of WINDOW cells of k pixels: it covers the lit
+def _interpolation(pixels: int, first: Tensor, k: Tensor, size: int) -> Tensor:
+    """(B, pixels, size) weights of linear interpolation from the centres of `size` cells of k (B, 1)
+    pixels starting at pixel coordinate `first` (B, 1) to the centres of the receiver's `pixels`
+    pixels along one axis; zero beyond the first and last cell centres."""
+    centre = (torch.arange(pixels, dtype=first.dtype, device=first.device) + 0.5 - first) / k - 0.5  # (B, pixels)
+    offset = centre[..., None] - torch.arange(size, dtype=first.dtype, device=first.device)
+    return (1 - offset.abs()).clamp_min(0.0)
+
+
+def _window(x: Tensor, lit: Tensor, reach: Tensor, pixels: int) -> tuple[Tensor, Tensor, Tensor]:
+    """Along one receiver axis, each spot's grid of at most WINDOW cells of k pixels: it covers the lit
     deposits and, within the receiver, everything the footprint reaches, with one cell of margin.
 
     Args:
@@ -457,7 +534,8 @@ def _window(x: Tensor, lit: Tensor, reach: Tensor, pixels: int) -> tuple[Tensor,
         reach: (B,) the footprint's reach in pixels; pixels: the receiver's size in pixels.
 
     Returns:
-        first pixel coordinate of the grid x0 (B, 1) and cell size k (B, 1) in pixels (integers >= 1).
+        first pixel coordinate of the grid x0 (B, 1), cell size k (B, 1) in pixels (integers >= 1) and
+        the number of cells needed (B,) (<= WINDOW; a grid may have more, all beyond the reach).
     """
     inf = torch.full_like(x, math.inf)
     centre = pixels / 2  # a heliostat with no lit cell: any window, it deposits nothing
@@ -465,26 +543,36 @@ def _window(x: Tensor, lit: Tensor, reach: Tensor, pixels: int) -> tuple[Tensor,
     hi = torch.where(lit, x, -inf).amax(-1).nan_to_num(centre, centre, centre)
     lo = torch.minimum(lo, (lo - reach).clamp(0, pixels))
     hi = torch.maximum(hi, (hi + reach).clamp(0, pixels))
-    k = ((hi.ceil() - lo.floor()) / (WINDOW - 2)).ceil().clamp_min(1)
-    return (lo.floor() - k)[:, None], k[:, None]
+    span = hi.ceil() - lo.floor()
+    k = (span / (WINDOW - 2)).ceil().clamp_min(1)
+    return (lo.floor() - k)[:, None], k[:, None], (span / k).ceil() + 2
 
 
 def _convolve_footprint(cells: Tensor, unit: Tensor, path: Tensor, cell: Tensor, reach: Tensor,
                         optics: Optics) -> Tensor:
-    """(B, WINDOW, WINDOW) deposited power (W) convolved with each heliostat's footprint: flux (W/m^2).
+    """(B, C, C) deposited power (W) convolved with each heliostat's footprint: flux (W/m^2).
 
     Args:
         unit: (B, 3) mean ray on the receiver's (normal, right, up); path: (B,) its length (m);
         cell: (B, 2) cell width and height (m); reach: (B,) the footprint's reach (m).
     """
-    kernel = footprint(density_lookup(optics.sun, float(optics.slope_error)), unit, path, cell,
-                       (WINDOW - 1, WINDOW - 1))
-    # A footprint wholly inside its window carries exactly the ray's power (cf. raytrace).
-    inside = reach < (WINDOW - 1) * cell.amin(-1)
+    # The kernel reaches J cells each way (J < C); a circular convolution of period >= C + J
+    # keeps the wrapped sums outside the crop.
+    size = cells.shape[-1]
+    reach_cells = int(min(size - 1, math.ceil(float((reach / cell.amin(-1)).max())) + 1))
+    # A footprint smooth on the scale of a cell is sampled at the cell centres, a sharper one averaged
+    # over q x q points per cell (raytrace.FOOTPRINT_SUPERSAMPLING).
+    density = density_lookup(optics.sun, float(optics.slope_error))
+    smooth = finest_scale(optics.sun, float(optics.slope_error)) * path >= SMOOTH_CELLS * cell.amax(-1)  # (B,)
+    kernel = cells.new_empty(len(cells), 2 * reach_cells + 1, 2 * reach_cells + 1)
+    for rows, q in ((smooth, 1), (~smooth, FOOTPRINT_SUPERSAMPLING)):
+        if rows.any():
+            kernel[rows] = footprint(density, unit[rows], path[rows], cell[rows], (reach_cells, reach_cells), q)
+    # A footprint wholly inside its grid carries exactly the ray's power (cf. raytrace).
+    inside = reach < reach_cells * cell.amin(-1)
     norm = kernel.sum((-2, -1)) * cell[:, 0] * cell[:, 1]
     kernel = torch.where(inside[:, None, None], kernel / norm[:, None, None].clamp_min(1e-30), kernel)
-    # Circular convolution of period 2 WINDOW: the wrapped sums land outside the crop.
-    size = (2 * WINDOW, 2 * WINDOW)
-    flux = torch.fft.irfft2(torch.fft.rfft2(cells, s=size) * torch.fft.rfft2(kernel, s=size), s=size)
-    crop = slice(WINDOW - 1, 2 * WINDOW - 1)
+    period = (_fft_size(size + reach_cells),) * 2
+    flux = torch.fft.irfft2(torch.fft.rfft2(cells, s=period) * torch.fft.rfft2(kernel, s=period), s=period)
+    crop = slice(reach_cells, reach_cells + size)
     return flux[:, crop, crop].clamp_min(0.0)  # both factors are >= 0: the clamp removes FFT round-off

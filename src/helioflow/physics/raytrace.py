@@ -473,22 +473,24 @@ def _density_table(sun: SunShape, slope_error: float, n: int = 8192) -> tuple[Te
 
 
 def density_lookup(sun: SunShape, slope_error: float) -> Callable[[Tensor], Tensor]:
-    """theta (rad, any shape) -> density (1/sr) by linear interpolation in the cached table."""
+    """theta (rad, any shape, >= 0) -> density (1/sr) by linear interpolation in the cached table, 0
+    beyond it; differentiable in theta."""
     table, step = _density_table(sun, slope_error)
+    last = len(table) - 1
+    rise = table[1:] - table[:-1]
 
     def density(theta: Tensor) -> Tensor:
-        values = table.to(device=theta.device, dtype=theta.dtype)
-        x = (theta / step).clamp(max=len(table) - 1.0)
-        i = x.detach().floor().clamp(max=len(table) - 2.0)
-        w = x - i
-        i = i.long()
-        value = torch.take(values, i) * (1 - w) + torch.take(values, i + 1) * w
-        return torch.where(theta / step > len(table) - 1, 0.0, value)
+        values, slopes = (t.to(device=theta.device, dtype=theta.dtype) for t in (table, rise))
+        x = theta * (1.0 / step)
+        i = x.detach().long().clamp_max(last - 1)  # floor for x >= 0
+        value = torch.take(values, i) + torch.take(slopes, i) * (x - i)
+        return torch.where(x <= last, value, 0.0)
 
     return density
 
 
-def footprint(density, unit: Tensor, path: Tensor, pixel: Tensor, reach: tuple[int, int]) -> Tensor:
+def footprint(density, unit: Tensor, path: Tensor, pixel: Tensor, reach: tuple[int, int],
+              supersampling: int = FOOTPRINT_SUPERSAMPLING) -> Tensor:
     """Flux (W/m^2 per W) of one ray around its hit point, at pixel offsets.
 
     Args:
@@ -497,6 +499,7 @@ def footprint(density, unit: Tensor, path: Tensor, pixel: Tensor, reach: tuple[i
         path: (B,) distance from the mirror to the hit point (m).
         pixel: (B, 2) pixel width and height (m) of each ray's grid.
         reach: (Jr, Jc) offsets -Jr..Jr rows and -Jc..Jc columns.
+        supersampling: the average over each pixel is taken over q x q points.
 
     Returns:
         (B, 2 Jr + 1, 2 Jc + 1) averaged over each pixel; row offset i means the pixel lies i rows
@@ -504,17 +507,18 @@ def footprint(density, unit: Tensor, path: Tensor, pixel: Tensor, reach: tuple[i
         rows -Jr..0 are evaluated and the rest mirrored.
     """
     dtype, device = unit.dtype, unit.device
-    sub = (torch.arange(FOOTPRINT_SUPERSAMPLING, dtype=dtype, device=device) + 0.5) / FOOTPRINT_SUPERSAMPLING - 0.5
+    sub = (torch.arange(supersampling, dtype=dtype, device=device) + 0.5) / supersampling - 0.5
     du = (torch.arange(-reach[1], reach[1] + 1, dtype=dtype, device=device)[:, None] + sub).reshape(-1)
     dv = -(torch.arange(-reach[0], 1, dtype=dtype, device=device)[:, None] + sub).reshape(-1)
     du, dv = du * pixel[:, 0, None], dv * pixel[:, 1, None]  # (B, Wk * q), (B, Hk * q) in m
     eu, ev = unit[:, 1, None, None], unit[:, 2, None, None]
     inv_r2 = (1.0 / path**2)[:, None, None]
     du, dv = du[:, None, :], dv[:, :, None]
-    theta2 = dv**2 * (1 - ev**2) + du**2 * (1 - eu**2) - 2 * eu * ev * du * dv
-    theta = (theta2 * inv_r2).clamp_min(1e-24).sqrt()
-    fine = density(theta) * unit[:, 0, None, None].abs() * inv_r2  # (B, (Jr + 1) q, Wk q)
-    top = torch.nn.functional.avg_pool2d(fine[:, None], FOOTPRINT_SUPERSAMPLING)[:, 0]
+    theta2 = (dv**2 * ((1 - ev**2) * inv_r2) + du**2 * ((1 - eu**2) * inv_r2)) - (2 * eu * ev * inv_r2 * du) * dv
+    theta = theta2.clamp_min(1e-24).sqrt()
+    fine = density(theta) * (unit[:, 0, None, None].abs() * inv_r2)  # (B, (Jr + 1) q, Wk q)
+    columns = sum(fine[..., i::supersampling] for i in range(supersampling))  # (B, (Jr + 1) q, Wk)
+    top = sum(columns[:, i::supersampling] for i in range(supersampling)) / supersampling**2
     return torch.cat((top, top[:, :-1].flip(-2, -1)), dim=-2)
 
 

@@ -228,6 +228,15 @@ def support_radius(shape: SunShape, slope_sigma_rad: float = 0.0) -> float:
     return BUIE_MAX_MRAD * 1e-3 + blur
 
 
+def finest_scale(shape: SunShape, slope_sigma_rad: float = 0.0) -> float:
+    """Angle (rad) below which radial_density has no structure: the Gaussian's sigma for point and
+    gaussian suns, the blur's sigma for pillbox and Buie suns (whose edges the blur smooths; 0, a
+    sharp edge, without slope error)."""
+    if shape.kind in ("point", "gaussian"):
+        return math.hypot(effective_sigma(shape), _blur_sigma(slope_sigma_rad))
+    return _blur_sigma(slope_sigma_rad)
+
+
 def radial_density(shape: SunShape, slope_sigma_rad: float = 0.0) -> Callable[[Tensor], Tensor]:
     """Normalised radial density f(theta) (per sr) of the reflected-beam spread.
 
