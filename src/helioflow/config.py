@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 from pathlib import Path
 
 import yaml
 
+from helioflow.data.paint import plant_heliostats
 from helioflow.errors import ConfigError, DataError, HelioflowError
 from helioflow.physics.effects import check_effects
 from helioflow.workflow import facing
@@ -281,36 +283,62 @@ def _check_field(config: dict, where: str) -> None:
                   allow_fit=True)
 
 
-_PAINT_KEYS = {"paint_dir", "resolution", "holdout", "targets"}
+_PAINT_KEYS = {"paint_dir", "heliostats", "resolution", "holdout", "targets"}
 _TRACE_KEYS = {"sun", "splits", "trace", "world_effects"}
 
 
 def _check_paint_dataset(config: dict, name: str, where: str) -> None:
-    """A PAINT dataset takes no trace keys, and its heliostat (a PAINT folder, whose geometry goes
-    to surfaces/<heliostat>.h5) is no configured heliostat and comes from one PAINT directory."""
+    """A PAINT dataset takes no trace keys; its heliostat (a PAINT folder, whose geometry goes to
+    surfaces/<heliostat>.h5), or each heliostat its plant entry selects (`heliostats`), is no
+    configured heliostat and comes from one PAINT directory."""
     ds = config["datasets"][name]
     extra = sorted((_TRACE_KEYS | _IMAGES_KEYS) & set(ds))
     if extra:
         kind = "traced datasets" if extra[0] in _TRACE_KEYS else "own images (source: images)"
         raise ConfigError(f"{where}: key {extra[0]!r} is for {kind}; a PAINT dataset (source: paint) "
-                          f"takes {', '.join(['heliostat', *sorted(_PAINT_KEYS)])}")
-    if ds["heliostat"] in config["heliostats"]:
-        raise ConfigError(f"{where}.heliostat = {ds['heliostat']!r} is also a configured heliostat; both would "
-                          f"write surfaces/{ds['heliostat']}.h5: rename the configured one")
-    for other, o in config["datasets"].items():
-        if o["source"] == "paint" and o["heliostat"] == ds["heliostat"] and o["paint_dir"] != ds["paint_dir"]:
-            raise ConfigError(f"{where}.paint_dir = {ds['paint_dir']!r}, but datasets.{other} takes heliostat "
-                              f"{ds['heliostat']!r} from {o['paint_dir']!r}; one heliostat, one PAINT directory")
+                          f"takes {', '.join(['heliostat or heliostats', *sorted(_PAINT_KEYS - {'heliostats'})])}")
+    if ("heliostat" in ds) == ("heliostats" in ds):
+        raise ConfigError(f"{where}: a PAINT dataset takes heliostat (one folder of paint_dir) or heliostats (a "
+                          f"plant: all, a glob over the folders or a list of them), "
+                          f"{'not both' if 'heliostat' in ds else 'one of them'}")
     paint_dir = Path(ds["paint_dir"])
     if not (paint_dir / "tower-measurements.json").is_file():
         raise ConfigError(f"{where}.paint_dir = {ds['paint_dir']!r}: no PAINT directory there (expected a folder with "
                           "tower-measurements.json and one folder per heliostat)")
-    if not (paint_dir / ds["heliostat"]).is_dir():
-        found = sorted(d.name for d in paint_dir.iterdir() if d.is_dir())
-        raise ConfigError(f"{where}.heliostat = {ds['heliostat']!r}: no such heliostat folder in {ds['paint_dir']}; "
-                          f"folders there: {', '.join(found) or 'none'}")
+    key = "heliostat" if "heliostat" in ds else "heliostats"
+    try:
+        selected = plant_heliostats(paint_dir, ds["heliostats"]) if key == "heliostats" else [ds["heliostat"]]
+    except DataError as exc:
+        raise ConfigError(f"{where}.{exc}") from None
+    found = sorted(d.name for d in paint_dir.iterdir() if d.is_dir())
+    for heliostat in selected:
+        if heliostat not in found:
+            raise ConfigError(f"{where}.{key}: {heliostat!r}: no such heliostat folder in {ds['paint_dir']}; "
+                              f"folders there: {', '.join(found) or 'none'}")
+        if heliostat in config["heliostats"]:
+            raise ConfigError(f"{where}.{key}: {heliostat!r} is also a configured heliostat; both would write "
+                              f"surfaces/{heliostat}.h5: rename the configured one")
+        for other, o in config["datasets"].items():
+            if o["source"] == "paint" and o["paint_dir"] != ds["paint_dir"] and heliostat in _paint_selection(o):
+                raise ConfigError(f"{where}.paint_dir = {ds['paint_dir']!r}, but datasets.{other} takes heliostat "
+                                  f"{heliostat!r} from {o['paint_dir']!r}; one heliostat, one PAINT directory")
+        if key == "heliostats" and not _NAME.fullmatch(f"{name}_{heliostat}"):
+            raise ConfigError(f"{where}.heliostats: the dataset of heliostat {heliostat!r} would be named "
+                              f"{name}_{heliostat!r}, not a valid name (letters, digits, '_', '.', '-', at most 64 "
+                              "characters): shorten the entry's name")
 
 
+def _paint_selection(ds: dict) -> list[str]:
+    """The heliostat folders a PAINT dataset takes (none if its selection is itself in error)."""
+    if "heliostat" in ds:
+        return [ds["heliostat"]]
+    try:
+        return plant_heliostats(ds["paint_dir"], ds["heliostats"])
+    except (DataError, OSError):
+        return []
+
+
+_NAME = re.compile(r"(?!.*[.][.])[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 _IMAGES_KEYS = {"images_dir", "csv", "target", "site", "heliostat_properties", "origin_wgs84"}
 _IMAGES_TAKES = ("images_dir", "csv", "target", "heliostat or heliostat_properties with origin_wgs84", "site",
                  "resolution", "splits or holdout", "model_effects")
@@ -324,7 +352,7 @@ def _check_images_dataset(config: dict, name: str, where: str) -> None:
     from helioflow.data.images import ERROR_KEYS, TIMESTAMP, check_files, check_ideal, read_table
 
     ds = config["datasets"][name]
-    extra = sorted(((_TRACE_KEYS - {"splits"}) | {"paint_dir", "targets"}) & set(ds))
+    extra = sorted(((_TRACE_KEYS - {"splits"}) | {"paint_dir", "heliostats", "targets"}) & set(ds))
     if extra:
         raise ConfigError(f"{where}: key {extra[0]!r} is not for own images; a dataset with source: images takes "
                           f"{', '.join(_IMAGES_TAKES)}")

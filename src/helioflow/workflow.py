@@ -13,6 +13,7 @@ import json
 import re
 from pathlib import Path
 
+from helioflow.data.paint import plant_heliostats
 from helioflow.errors import ConfigError, DataError
 from helioflow.models.names import parse_model
 
@@ -784,10 +785,46 @@ def expand_leave_one_out(config: dict) -> dict:
     return config
 
 
+PLANT_KEY = "plant_of"  # marks a generated heliostat dataset with its plant entry's name
+
+
+def expand_plants(config: dict) -> dict:
+    """The config (a copy) with every PAINT dataset that takes a plant (`heliostats`: all, a glob or a
+    list; data.paint.plant_heliostats) replaced, in place in `datasets`' order, by one dataset per
+    heliostat named '<entry>_<heliostat>': the entry with heliostat set and marked with PLANT_KEY =
+    the entry's name, so that the existing import, train, evaluate and diagnose rules run per
+    heliostat. A generated name already in use raises ConfigError."""
+    config = copy.deepcopy(config)
+    datasets = {}
+    for name, ds in config["datasets"].items():
+        if "heliostats" not in ds:
+            datasets[name] = ds
+            continue
+        entry = {k: v for k, v in ds.items() if k != "heliostats"}
+        members = {f"{name}_{h}": {**copy.deepcopy(entry), "heliostat": h, PLANT_KEY: name}
+                   for h in plant_heliostats(ds["paint_dir"], ds["heliostats"])}
+        taken = sorted(set(members) & set(config["datasets"]))
+        if taken:
+            raise ConfigError(f"datasets.{name}: the generated name {taken[0]!r} is already a dataset; rename it")
+        datasets.update(members)
+    config["datasets"] = datasets
+    return config
+
+
+def plant_groups(config: dict) -> dict[str, list[str]]:
+    """{plant entry: its heliostats' datasets} of an expanded config (before leave-one-out folds)."""
+    groups: dict[str, list[str]] = {}
+    for name, ds in config["datasets"].items():
+        if PLANT_KEY in ds and FOLD_KEY not in ds:
+            groups.setdefault(ds[PLANT_KEY], []).append(name)
+    return groups
+
+
 def expand_config(config: dict) -> dict:
-    """A validated config with its generated entries: the field's (expand_field) and the
-    leave-one-out folds (expand_leave_one_out). What common.smk and the CLI work with."""
-    return expand_leave_one_out(expand_field(config))
+    """A validated config with its generated entries: the field's (expand_field), one dataset per
+    heliostat of a plant entry (expand_plants) and the leave-one-out folds (expand_leave_one_out).
+    What common.smk and the CLI work with."""
+    return expand_leave_one_out(expand_plants(expand_field(config)))
 
 
 def leave_one_out_groups(config: dict) -> dict[str, list[str]]:

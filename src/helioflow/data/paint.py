@@ -319,6 +319,33 @@ def heliostat_folder(paint_dir: Path, heliostat: str) -> Path:
     return folder
 
 
+def plant_heliostats(paint_dir: str | os.PathLike, selection: str | list[str]) -> list[str]:
+    """The heliostat folders of a PAINT directory that a plant entry (`heliostats:`) selects, sorted.
+
+    Args:
+        paint_dir: the PAINT directory (tower-measurements.json and one folder per heliostat).
+        selection: "all" (every folder that holds a heliostat-properties.json and at least one
+            calibration measurement: what can be calibrated), a glob over the folder names (e.g.
+            "AA*", with the same condition), or a list of folder names (taken as given).
+
+    Raises DataError when a glob or "all" selects no heliostat, naming the folders there.
+    """
+    if isinstance(selection, list):
+        return list(dict.fromkeys(selection))
+    import fnmatch
+
+    root = Path(paint_dir)
+    folders = sorted(p for p in root.iterdir() if p.is_dir()) if root.is_dir() else []
+    pattern = "*" if selection == "all" else selection
+    chosen = [f.name for f in folders if fnmatch.fnmatchcase(f.name, pattern) and (f / PROPERTIES_FILE).is_file()
+              and any(f.glob(f"*{CALIBRATION_SUFFIX}"))]
+    if not chosen:
+        listed = ", ".join(f.name for f in folders) or "none"
+        raise DataError(f"heliostats: {selection!r} selects no heliostat folder of {paint_dir} with a "
+                        f"{PROPERTIES_FILE} and calibration measurements; folders there: {listed}")
+    return chosen
+
+
 def read_heliostat_properties(path: Path, tower: Tower) -> tuple[Heliostat, dict]:
     """The ideal heliostat (float64) of a heliostat-properties.json and its provenance attributes."""
     if not path.is_file():

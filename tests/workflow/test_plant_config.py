@@ -1,0 +1,93 @@
+"""A plant's calibration data in one config entry (source: paint with heliostats: all, a glob or a
+list), expanded after validation into one dataset per heliostat, and its errors."""
+
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+from helioflow.config import validate_config
+from helioflow.errors import ConfigError
+from helioflow.workflow import (
+    FOLD_KEY,
+    PLANT_KEY,
+    expand_config,
+    import_paint_params,
+    leave_one_out_groups,
+    paint_heliostat_params,
+    plant_groups,
+)
+
+REPO = Path(__file__).resolve().parents[2]
+PAINT = REPO / "tests" / "data" / "paint"
+# tests/data/paint: AA23 has measurements but no geometry, AA28 geometry but no measurements
+CALIBRATABLE = ["AA31", "AA39", "AC43"]
+
+
+def _config(plant: dict | None = None, **extra_datasets) -> dict:
+    config = yaml.safe_load((REPO / "tests" / "workflow" / "tiny_config.yaml").read_text())
+    config["datasets"]["jul"] = {"source": "paint", "paint_dir": str(PAINT), "resolution": [64, 64],
+                                 **({"heliostats": "all"} if plant is None else plant)}
+    config["datasets"].update(extra_datasets)
+    return config
+
+
+@pytest.mark.parametrize("selection, expected", [("all", CALIBRATABLE), ("AA*", ["AA31", "AA39"]),
+                                                 (["AA39", "AA31"], ["AA39", "AA31"])])
+def test_one_entry_becomes_one_dataset_per_heliostat_with_its_own_folder(selection, expected):
+    config = expand_config(validate_config(_config({"heliostats": selection})))
+    names = [f"jul_{h}" for h in expected]
+    assert list(config["datasets"]) == ["scan", "sky", *names]  # in place of the entry, in order
+    for name, heliostat in zip(names, expected):
+        ds = config["datasets"][name]
+        assert ds["heliostat"] == heliostat and ds[PLANT_KEY] == "jul" and "heliostats" not in ds
+        assert import_paint_params(config, name)["heliostat"] == heliostat
+    assert plant_groups(config) == {"jul": names}
+    for heliostat in expected:  # each heliostat's geometry comes from its own folder (rule paint_heliostat)
+        assert paint_heliostat_params(config, heliostat) == {"paint_dir": str(PAINT), "heliostat": heliostat}
+
+
+def test_leave_one_out_splits_each_heliostat_of_the_plant():
+    config = expand_config(validate_config(_config({"heliostats": ["AA31", "AC43"], "holdout": "leave_one_out"})))
+    groups = leave_one_out_groups(config)
+    assert sorted(groups) == ["jul_AA31", "jul_AC43"] and all(len(f) == 2 for f in groups.values())
+    assert all(config["datasets"][f][FOLD_KEY] == "jul_AA31" for f in groups["jul_AA31"])
+    assert plant_groups(config) == {}  # the folds stand in for the heliostats' datasets
+
+
+def test_a_plant_entry_without_heliostats_is_the_single_heliostat_entry_as_before():
+    config = validate_config(_config({"heliostat": "AA39"}))
+    assert expand_config(config)["datasets"]["jul"]["heliostat"] == "AA39"
+
+
+@pytest.mark.parametrize("plant, message", [
+    ({"heliostats": "ZZ*"}, "datasets.jul.heliostats: 'ZZ*' selects no heliostat folder of"),
+    ({"heliostats": ["AA39", "XX99"]}, "datasets.jul.heliostats: 'XX99': no such heliostat folder in"),
+    ({"heliostats": "all", "heliostat": "AA39"}, "takes heliostat (one folder of paint_dir) or heliostats"),
+    ({}, "takes heliostat (one folder of paint_dir) or heliostats (a plant: all, a glob over the folders or a "
+         "list of them), one of them"),
+    ({"heliostats": []}, "datasets.jul.heliostats"),
+])
+def test_a_bad_plant_entry_names_the_key_and_what_was_expected(plant, message):
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)").replace("*", r"\*")
+                       .replace("?", r"\?")):
+        validate_config(_config(plant))
+
+
+def test_a_heliostat_taken_from_two_paint_directories_or_a_name_taken_twice_is_refused(tmp_path):
+    other = tmp_path / "paint"
+    shutil.copytree(PAINT, other)
+    clash = {"source": "paint", "paint_dir": str(other), "heliostat": "AA31"}
+    with pytest.raises(ConfigError, match="one heliostat, one PAINT directory"):
+        validate_config(_config(aa31=clash))
+    taken = {"source": "paint", "paint_dir": str(PAINT), "heliostat": "AA39"}
+    with pytest.raises(ConfigError, match="the generated name 'jul_AA39' is already a dataset"):
+        expand_config(validate_config(_config(jul_AA39=taken)))
+
+
+def test_a_traced_dataset_with_heliostats_is_told_the_key_is_for_paint():
+    config = _config({"heliostat": "AA39"})
+    config["datasets"]["scan"]["heliostats"] = "all"
+    with pytest.raises(ConfigError, match="datasets.scan: key 'heliostats' is for PAINT datasets"):
+        validate_config(config)
