@@ -295,17 +295,25 @@ def enu_to_wgs84(tower: Tower, enu: np.ndarray) -> list[float]:
 
 
 def write_paint_folder(folder: Path, world: World, n_images: int = 40, rays: int = 1_000_000,
-                       seed: int = 0, neighbour: str | None = None) -> list[tuple[float, float]]:
-    """A PAINT folder (tower-measurements.json, AA39/heliostat-properties.json and, per image,
+                       seed: int = 0, neighbour: str | None = None, name: str = HELIOSTAT,
+                       offset_enu_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> list[tuple[float, float]]:
+    """A PAINT folder (tower-measurements.json, <name>/heliostat-properties.json and, per image,
     <id>-calibration-properties.json and <id>-flux.png) of `n_images` calibrations under `world`;
-    returns their sun positions (azimuth, elevation deg). `neighbour`: a folder name under which the
-    world's neighbour is published (its heliostat-properties.json: AA39's, at the neighbour's
-    position), as PAINT lists every heliostat of the field; None: the neighbour stays unknown."""
+    returns their sun positions (azimuth, elevation deg). The heliostat is AA39's design with its
+    pivot moved by `offset_enu_m` (m) from AA39's, published as folder `name`. `neighbour`: a folder
+    name under which the world's neighbour is published (its heliostat-properties.json: AA39's, at
+    the neighbour's position), as PAINT lists every heliostat of the field; None: it stays unknown."""
     folder = Path(folder)
-    (folder / HELIOSTAT).mkdir(parents=True, exist_ok=True)
+    (folder / name).mkdir(parents=True, exist_ok=True)
     shutil.copy(PAINT / "tower-measurements.json", folder / "tower-measurements.json")
-    shutil.copy(PAINT / HELIOSTAT / "heliostat-properties.json", folder / HELIOSTAT / "heliostat-properties.json")
     scene = Scene(world.target)
+    scene.position = scene.position + np.asarray(offset_enu_m, float)
+    if any(offset_enu_m):
+        props = json.loads((PAINT / HELIOSTAT / "heliostat-properties.json").read_text())
+        props["heliostat_position"] = enu_to_wgs84(scene.tower, scene.position)
+        (folder / name / "heliostat-properties.json").write_text(json.dumps(props))
+    else:
+        shutil.copy(PAINT / HELIOSTAT / "heliostat-properties.json", folder / name / "heliostat-properties.json")
     if neighbour is not None and world.neighbour_enu_m is not None:
         props = json.loads((PAINT / HELIOSTAT / "heliostat-properties.json").read_text())
         props["heliostat_position"] = enu_to_wgs84(scene.tower, scene.position + np.asarray(world.neighbour_enu_m))
@@ -317,13 +325,13 @@ def write_paint_folder(folder: Path, world: World, n_images: int = 40, rays: int
         flux = camera(trace_image(scene, world, az, el, rays, rng), world.camera[0])
         png = np.round(flux / flux.max() * 255).astype(np.uint8)
         mid = str(100_000 + i)
-        Image.fromarray(png, mode="L").save(folder / HELIOSTAT / f"{mid}-flux.png")
+        Image.fromarray(png, mode="L").save(folder / name / f"{mid}-flux.png")
         rows, cols = np.indices(png.shape) + 0.5
         w = png.astype(float)
         x = ((cols * w).sum() / w.sum() / PNG_SIDE - 0.5) * scene.target.width
         y = (0.5 - (rows * w).sum() / w.sum() / PNG_SIDE) * scene.target.height
         centroid = enu_to_wgs84(scene.tower, scene.target.center + x * scene.right + y * scene.up)
-        (folder / HELIOSTAT / f"{mid}-calibration-properties.json").write_text(json.dumps({
+        (folder / name / f"{mid}-calibration-properties.json").write_text(json.dumps({
             "motor_position": {"axis_1_motor_position": 0, "axis_2_motor_position": 0},
             "target_name": world.target, "sun_elevation": el, "sun_azimuth": az,
             "focal_spot": {"HeliOS": centroid, "UTIS": centroid}}))
@@ -332,7 +340,51 @@ def write_paint_folder(folder: Path, world: World, n_images: int = 40, rays: int
 
 DEMO = World(tracking_mrad=(1.2, -0.9), camera=(0.03, 1.5))  # the PAINT demo: workflow/variants/paint_world_demo.yaml
 
-if __name__ == "__main__":  # python tests/paint_world.py examples/paint_world
+
+def plant_worlds(n: int, seed: int, sun: tuple = ("gaussian", 2.51), camera: tuple = (0.03, 1.5)
+                 ) -> dict[str, tuple[tuple[float, float, float], World]]:
+    """{name: (pivot offset from AA39's (m, ENU), world)} of a plant of n heliostats under one sun
+    and one camera (what every heliostat of a calibration campaign shares), each with its own hidden
+    effects drawn at random: a tracking error always (joint offsets, 0.3-1.5 mrad each, random
+    sign), and on about a third each a facet canting error (0.5-1 mrad RMS), a surface bump
+    (0.5-1 mm high, 0.3 m wide, on one facet) or a slope error (0.5-1 mrad). Pivots on rows 8 m
+    apart east-west and 10 m north-south around AA39's (names P000, P001, ...)."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for i in range(n):
+        offset = (8.0 * (i % 6 - 2.5), 10.0 * (i // 6), 0.0)
+        tracking = tuple(float(rng.uniform(0.3, 1.5) * rng.choice([-1.0, 1.0])) for _ in range(2))
+        kind = ("canting", "bump", "slope")[i % 3] if rng.uniform() < 0.9 else None
+        truth = {"tracking_mrad": tracking, "hidden": ["tracking"] + ([kind] if kind else [])}
+        world = World(tracking_mrad=tracking, sun=sun, camera=camera, truth=truth)
+        if kind == "canting":
+            world.canting_mrad = rng.normal(0.0, rng.uniform(0.5, 1.0), (4, 2))
+        elif kind == "bump":
+            world.bump = (int(rng.integers(0, 4)), float(rng.uniform(0.5, 1.0)), 0.3)
+        elif kind == "slope":
+            world.slope_mrad = float(rng.uniform(0.5, 1.0))
+        out[f"P{i:03d}"] = (offset, world)
+    return out
+
+
+def write_plant(folder: Path, worlds: dict, n_images: int, rays: int, seed: int) -> dict:
+    """A PAINT directory of a plant (plant_worlds): one folder per heliostat, every heliostat
+    calibrated at the same sun positions; writes truth.json beside ({name: the world's truth and
+    offset}) and returns it."""
+    truth = {}
+    for k, (name, (offset, world)) in enumerate(worlds.items()):
+        write_paint_folder(folder, world, n_images, rays, seed=seed + 1000 * k, name=name, offset_enu_m=offset)
+        truth[name] = {**world.truth, "offset_enu_m": list(offset)}
+    (Path(folder) / "truth.json").write_text(json.dumps(truth, indent=1))
+    return truth
+
+PLANT_DEMO = {"n": 6, "seed": 11, "n_images": 16, "rays": 500_000}  # workflow/variants/plant_demo.yaml
+
+if __name__ == "__main__":  # python tests/paint_world.py examples/paint_world | plant examples/plant_world
     import sys
 
-    write_paint_folder(Path(sys.argv[1]), DEMO, n_images=40, rays=1_000_000, seed=7)
+    if sys.argv[1] == "plant":
+        write_plant(Path(sys.argv[2]), plant_worlds(PLANT_DEMO["n"], PLANT_DEMO["seed"]), PLANT_DEMO["n_images"],
+                    PLANT_DEMO["rays"], PLANT_DEMO["seed"])
+    else:
+        write_paint_folder(Path(sys.argv[1]), DEMO, n_images=40, rays=1_000_000, seed=7)

@@ -218,6 +218,21 @@ def cmd_leave_one_out(args) -> None:
     logging.info("wrote %s and %s", args.csv, args.figure)
 
 
+def cmd_plant_table(args) -> None:
+    from helioflow.scoring.plant import write_plant_table
+
+    if args.spec is not None:
+        spec = read_spec(args.spec)
+    elif args.config is not None:
+        from helioflow.config import load_config
+
+        spec = workflow.plant_table_spec(workflow.expand_config(load_config(args.config)))
+    else:
+        raise HelioflowError("give --spec JSON or @FILE, or --config FILE")
+    rows = write_plant_table(spec, args.csv)
+    logging.info("wrote %s (%d heliostats)", args.csv, len(rows))
+
+
 def cmd_report(args) -> None:
     from helioflow.report.page import write_report
 
@@ -344,6 +359,14 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--csv", required=True, help="leave_one_out/<dataset>.csv: per held-out image and network")
     p.add_argument("--figure", required=True, help="PNG: measured and predicted held-out images")
     p.set_defaults(func=cmd_leave_one_out)
+
+    p = sub.add_parser("plant-table", help="one row per heliostat of the plant entries: errors, named effects, "
+                       "pointing error with its sigma, canting, surface, flags")
+    p.add_argument("--spec", help="the rule's parameters as JSON, or @FILE (what the Snakefile passes: "
+                                  "specs/plant_table.json)")
+    p.add_argument("--config", help="instead of --spec: the config file (its plant entries and `plant` section)")
+    p.add_argument("--csv", required=True, help="plant/heliostats.csv")
+    p.set_defaults(func=cmd_plant_table)
 
     p = sub.add_parser("recovery", help="what a fitted drt model recovered of a synthetic heliostat's true errors")
     p.add_argument("--model", required=True, help="models/<dataset>/drt.pt")

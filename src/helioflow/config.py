@@ -312,12 +312,13 @@ def _check_paint_dataset(config: dict, name: str, where: str) -> None:
         raise ConfigError(f"{where}.{exc}") from None
     found = sorted(d.name for d in paint_dir.iterdir() if d.is_dir())
     for heliostat in selected:
-        if heliostat not in found:
-            raise ConfigError(f"{where}.{key}: {heliostat!r}: no such heliostat folder in {ds['paint_dir']}; "
-                              f"folders there: {', '.join(found) or 'none'}")
+        label = f"{where}.heliostat = {heliostat!r}" if key == "heliostat" else f"{where}.heliostats: {heliostat!r}"
         if heliostat in config["heliostats"]:
-            raise ConfigError(f"{where}.{key}: {heliostat!r} is also a configured heliostat; both would write "
-                              f"surfaces/{heliostat}.h5: rename the configured one")
+            raise ConfigError(f"{label} is also a configured heliostat; both would write surfaces/{heliostat}.h5: "
+                              "rename the configured one")
+        if heliostat not in found:
+            raise ConfigError(f"{label}: no such heliostat folder in {ds['paint_dir']}; "
+                              f"folders there: {', '.join(found) or 'none'}")
         for other, o in config["datasets"].items():
             if o["source"] == "paint" and o["paint_dir"] != ds["paint_dir"] and heliostat in _paint_selection(o):
                 raise ConfigError(f"{where}.paint_dir = {ds['paint_dir']!r}, but datasets.{other} takes heliostat "

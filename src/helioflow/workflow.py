@@ -13,7 +13,6 @@ import json
 import re
 from pathlib import Path
 
-from helioflow.data.paint import plant_heliostats
 from helioflow.errors import ConfigError, DataError
 from helioflow.models.names import parse_model
 
@@ -419,6 +418,7 @@ def report_inputs(config: dict) -> dict[str, list[str]]:
         "field": [f"{r}/field/flux.png", f"{r}/field/metrics.json"] if "field" in config else [],
         "leave_one_out": [p for g in leave_one_out_groups(config)
                           for p in (f"{r}/figures/leave_one_out/{g}.png", f"{r}/leave_one_out/{g}.csv")],
+        "plant": plant_table_path(config),
     }
 
 
@@ -636,7 +636,7 @@ def expand_field(config: dict) -> dict:
     return config
 
 
-SPEC_RULES = ("compose_field", "report", "table", "data_efficiency")  # rules whose parameters grow with the plant
+SPEC_RULES = ("compose_field", "report", "table", "data_efficiency", "plant_table")  # parameters that grow with the plant
 
 
 def rule_spec(config: dict, rule: str) -> dict:
@@ -651,6 +651,8 @@ def rule_spec(config: dict, rule: str) -> dict:
         return {"metrics": metrics_paths(config)}
     if rule == "data_efficiency":
         return {"metrics": efficiency_metrics(config)}
+    if rule == "plant_table":
+        return plant_table_spec(config)
     raise ConfigError(f"no spec file for rule {rule!r}; rules with one: {', '.join(SPEC_RULES)}")
 
 
@@ -794,6 +796,8 @@ def expand_plants(config: dict) -> dict:
     heliostat named '<entry>_<heliostat>': the entry with heliostat set and marked with PLANT_KEY =
     the entry's name, so that the existing import, train, evaluate and diagnose rules run per
     heliostat. A generated name already in use raises ConfigError."""
+    from helioflow.data.paint import plant_heliostats  # here: `helioflow --help` starts without torch
+
     config = copy.deepcopy(config)
     datasets = {}
     for name, ds in config["datasets"].items():
@@ -818,6 +822,36 @@ def plant_groups(config: dict) -> dict[str, list[str]]:
         if PLANT_KEY in ds and FOLD_KEY not in ds:
             groups.setdefault(ds[PLANT_KEY], []).append(name)
     return groups
+
+
+def plant_table_path(config: dict) -> list[str]:
+    """plant/heliostats.csv when the config has plant entries (expand_plants) and a diagnosis."""
+    if not plant_groups(config) or "diagnosis" not in config:
+        return []
+    return [f"{results_dir(config)}/plant/heliostats.csv"]
+
+
+def plant_table_spec(config: dict) -> dict:
+    """Parameters and inputs of rule `plant_table` (scoring.plant.write_plant_table): per plant
+    heliostat its dataset, the physics model config plant.model names (which must be among the
+    networks) and its diagnosis."""
+    settings = {"model": "drt", "pointing_limit_mrad": 1.0, **(config.get("plant") or {})}
+    if not plant_table_path(config):
+        return {"pointing_limit_mrad": settings["pointing_limit_mrad"], "heliostats": []}
+    if settings["model"] not in (config.get("networks") or {}):
+        raise ConfigError(f"plant.model = {settings['model']!r}: the plant table reports that model's fit, but it is "
+                          f"not in networks ({', '.join(config.get('networks') or {}) or 'none'})")
+    r = results_dir(config)
+    return {"pointing_limit_mrad": settings["pointing_limit_mrad"],
+            "heliostats": [{"plant": plant, "heliostat": config["datasets"][d]["heliostat"], "dataset": d,
+                            "dataset_path": f"{r}/datasets/{d}.h5", "model_path": f"{r}/models/{d}/{settings['model']}.pt",
+                            "diagnosis_path": f"{r}/diagnosis/{d}.json"}
+                           for plant, members in plant_groups(config).items() for d in members]}
+
+
+def plant_table_inputs(config: dict) -> list[str]:
+    """Files rule `plant_table` reads (plant_table_spec's paths)."""
+    return [h[k] for h in plant_table_spec(config)["heliostats"] for k in ("dataset_path", "model_path", "diagnosis_path")]
 
 
 def expand_config(config: dict) -> dict:

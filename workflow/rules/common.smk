@@ -33,6 +33,7 @@ from helioflow.workflow import (
     paint_heliostat_inputs,
     paint_heliostat_params,
     paint_heliostats,
+    plant_table_inputs,
     results_dir,
     spec_path,
     surfaces_params,

@@ -82,3 +82,23 @@ rule leave_one_out:
     shell:
         "helioflow --threads {params.torch_threads:q} leave-one-out --inputs {params.inputs:q} --csv {output.csv:q}"
         " --figure {output.figure:q} > {log:q} 2>&1"
+
+
+rule plant_table:
+    """One row per heliostat of the plant entries (datasets with `heliostats`): held-out errors, the
+    diagnosis' named effects, the pointing error of the fitted kinematics with its sigma, canting,
+    surface and flags (helioflow.scoring.plant)."""
+    input:
+        plant_table_inputs(config),
+        spec=spec_path(config, "plant_table"),
+    output:
+        f"{RESULTS}/plant/heliostats.csv",
+    params:
+        torch_threads=TORCH_THREADS,
+    log:
+        f"{RESULTS}/logs/plant_table/plant_table.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/plant_table/plant_table.tsv"
+    threads: TORCH_THREADS
+    shell:
+        "helioflow --threads {params.torch_threads:q} plant-table --spec @{input.spec:q} --csv {output:q} > {log:q} 2>&1"

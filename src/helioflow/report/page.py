@@ -17,6 +17,8 @@ benchmark files, and writes results/<experiment>/report.html with the sections
                         and field/metrics.json as tables
     Leave-one-out       figures/leave_one_out/<d>.png and leave_one_out/<d>.csv (held-out scores
                         per real image and network) as a table
+    The plant           plant/heliostats.csv: a summary and the worst heliostats (by pointing
+                        error), readable for hundreds of heliostats; the whole table as a download
     Run times           benchmarks/<rule>/<wildcards>.tsv (snakemake's benchmark files)
 
 A section whose files are all absent from the inputs says "Not part of this experiment".
@@ -50,7 +52,8 @@ from helioflow.report.html import (
 )
 
 SECTIONS = ("datasets", "dataset_figures", "paint_centroids", "table", "samples", "psnr", "data_efficiency",
-            "recovery", "plan", "diagnosis", "diagnosis_figures", "field", "leave_one_out")
+            "recovery", "plan", "diagnosis", "diagnosis_figures", "field", "leave_one_out", "plant")
+PLANT_WORST = 20  # heliostats listed in the report's plant section
 ABSENT = '<p class="absent">Not part of this experiment.</p>'
 
 
@@ -179,6 +182,40 @@ def _leave_one_out_section(files: dict[str, list[str]]) -> str:
     return "\n".join(parts)
 
 
+def _plant_section(files: dict[str, list[str]]) -> str:
+    """The plant table (scoring.plant): how many heliostats, how many flagged, which effects the
+    diagnoses named how often, and the PLANT_WORST heliostats with the largest pointing error."""
+    from helioflow.scoring.plant import COLUMNS
+
+    parts = []
+    for path in files["plant"]:
+        try:
+            records = list(csv.DictReader(io.StringIO(read_bytes(path).decode("utf-8"))))
+        except UnicodeDecodeError as exc:
+            raise DataError(f"{path}: not a plant table: {exc}") from None
+        if not records or any(k not in records[0] for k in COLUMNS):
+            raise DataError(f"{path}: not a plant table (written by `plant-table`): needs columns {', '.join(COLUMNS)}")
+        named: dict[str, int] = {}
+        for r in records:
+            for effect in filter(None, r["named_effects"].split(";")):
+                named[effect] = named.get(effect, 0) + 1
+        flagged = [r for r in records if r["flags"]]
+        summary = [["heliostats", len(records)], ["flagged", len(flagged)],
+                   *[[f"named: {effect}", count] for effect, count in sorted(named.items(), key=lambda kv: -kv[1])]]
+        worst = sorted(records, key=lambda r: -(_number(r["pointing_error_mrad"]) or 0.0))[:PLANT_WORST]
+        shown = lambda text, digits: "–" if _number(text) is None else fixed(_number(text), digits)  # noqa: E731
+        rows = [[r["heliostat"], r["images"], shown(r["heldout_error_ideal"], 4), shown(r["heldout_error_calibrated"], 4),
+                 r["named_effects"] or "none",
+                 f"{shown(r['pointing_error_mrad'], 3)} ± {shown(r['pointing_error_sigma_mrad'], 3)}",
+                 shown(r["canting_rms_mrad"], 3), shown(r["surface_rms_mm"], 4), r["flags"]] for r in worst]
+        parts += [table(["", "count"], summary),
+                  f"<h3>The {len(worst)} heliostats with the largest pointing error</h3>",
+                  table(["heliostat", "images", "held-out error, configured", "with named effects", "named effects",
+                         "pointing error (mrad) ± sigma", "canting RMS (mrad)", "surface RMS (mm)", "flags"], rows),
+                  download(path)]
+    return "\n".join(parts)
+
+
 # (anchor, heading, the input sections it shows, renderer of the files by section)
 LAYOUT = (
     ("datasets", "Datasets", ("datasets", "dataset_figures", "paint_centroids"), _datasets_section),
@@ -191,6 +228,7 @@ LAYOUT = (
     ("ledger", "Error ledger", ("diagnosis",), ledger_section),
     ("field", "Field flux maps", ("field",), _field_section),
     ("leave_one_out", "Leave-one-out on real images", ("leave_one_out",), _leave_one_out_section),
+    ("plant", "The plant", ("plant",), _plant_section),
 )
 
 

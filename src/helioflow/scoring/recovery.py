@@ -42,7 +42,7 @@ from helioflow.models.registry import load_model
 from helioflow.models.uncertainty import Z95, FitUncertainty
 from helioflow.physics.effects.canting import zero_mean
 from helioflow.physics.geometry import sun_vector
-from helioflow.physics.heliostat import bspline_basis, orientation, without_planes
+from helioflow.physics.heliostat import Heliostat, bspline_basis, orientation, without_planes
 from helioflow.scoring.evaluation import scored_images
 from helioflow.scoring.metrics import psnr
 
@@ -64,12 +64,8 @@ def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, d
         truth = true.tracking_error * 1e3
         out["tracking_mrad"] = {"fitted": _rounded(fitted), "true": _rounded(truth),
                                 "max_error": round(float((fitted - truth).abs().max()), 4)}
-        sun = sun_vector(torch.deg2rad(torch.as_tensor(ds.azimuth_deg, dtype=torch.float64)),
-                         torch.deg2rad(torch.as_tensor(ds.elevation_deg, dtype=torch.float64)))
-        aim = torch.as_tensor(ds.attrs["target_center_m"], dtype=torch.float64)
-        n_true = orientation(true, sun, aim)[..., 2]
-        n_fit = orientation(replace(true, tracking_error=fitted * 1e-3), sun, aim)[..., 2]
-        angle = torch.linalg.cross(n_true, n_fit).norm(dim=-1).asin() * 1e3
+        angle = pointing_angles_mrad(true, fitted, ds.azimuth_deg, ds.elevation_deg, ds.attrs["target_center_m"],
+                                     reference_mrad=truth)
         out["pointing_error_mrad"] = {"rms": round(float(angle.pow(2).mean().sqrt()), 4),
                                       "max": round(float(angle.max()), 4)}
     if "surface" in tensors:
@@ -146,6 +142,23 @@ def _with_sigma(out: dict, uncertainty: FitUncertainty, true) -> dict:
     updated["uncertainty"] = {k: uncertainty.as_json()[k] for k in ("misfit", "structure", "structured_beyond",
                                                                      "facet_structure", "correlations")}
     return updated
+
+
+def pointing_angles_mrad(heliostat: Heliostat, tracking_mrad: torch.Tensor, azimuth_deg, elevation_deg,
+                         aim_m, reference_mrad: torch.Tensor | None = None) -> torch.Tensor:
+    """Angles (mrad) between the mirror normal with kinematic errors `tracking_mrad` ((5,) or (D, 5),
+    TRACKING_PARAMETERS order) and with `reference_mrad` ((5,); default none: the ideal kinematics)
+    at each of S sun positions (deg): (S,) or (D, S)."""
+    h = heliostat.to("cpu", torch.float64)
+    sun = sun_vector(torch.deg2rad(torch.as_tensor(azimuth_deg, dtype=torch.float64)),
+                     torch.deg2rad(torch.as_tensor(elevation_deg, dtype=torch.float64)))
+    aim = torch.as_tensor(aim_m, dtype=torch.float64)
+    reference = torch.zeros(5, dtype=torch.float64) if reference_mrad is None else reference_mrad.double()
+    ideal = orientation(replace(h, tracking_error=reference * 1e-3), sun, aim)[..., 2]  # (S, 3)
+    draws = torch.as_tensor(tracking_mrad, dtype=torch.float64).reshape(-1, 5)
+    normals = torch.stack([orientation(replace(h, tracking_error=t * 1e-3), sun, aim)[..., 2] for t in draws])
+    angle = torch.linalg.cross(ideal.expand_as(normals), normals).norm(dim=-1).clamp(max=1.0).asin() * 1e3
+    return angle.reshape(*torch.as_tensor(tracking_mrad).shape[:-1], len(sun))
 
 
 def surface_heights(control_heights_mm: torch.Tensor, samples_per_side: int = 64) -> torch.Tensor:

@@ -1,0 +1,116 @@
+"""The plant table: one row per calibrated heliostat of a plant entry (config `datasets.<name>.heliostats`).
+
+Columns of results/<experiment>/plant/heliostats.csv:
+
+- plant, heliostat, dataset: the plant entry, the PAINT folder and its generated dataset;
+- images: calibration images of the dataset;
+- heldout_error_ideal, heldout_error_calibrated: the diagnosis' held-out error (misplaced flux
+  fraction, diagnosis.json `heldout_error`) of the configured model, and of the model with the
+  changes the diagnosis named (`remaining.error`);
+- named_effects: those changes' registry effects, ';'-separated;
+- pointing_error_mrad, pointing_error_sigma_mrad: RMS over the dataset's sun positions of the
+  angle between the mirror normal of the fitted kinematics (the physics model's `tracking`) and
+  of the ideal one, and its standard deviation over draws of the tracking parameters from the fit's
+  covariance (models/uncertainty.py; empty where the fit has none);
+- canting_rms_mrad, surface_rms_mm: RMS of the fitted facet tilts and of the fitted surface heights
+  (without each facet's plane, as the fit defines them; empty where the model fits none);
+- flags: ';'-separated: `pointing > <limit> mrad` (config plant.pointing_limit_mrad),
+  `tracking not determined` (a tracking parameter the fit cannot pin down), `residual <k> x noise`
+  (what the diagnosis could not explain).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+
+import numpy as np
+import torch
+
+from helioflow.data.hdf5 import read_dataset
+from helioflow.errors import DataError
+from helioflow.io import write_text_atomic
+from helioflow.models.registry import load_model
+from helioflow.physics.heliostat import Heliostat
+from helioflow.scoring.recovery import pointing_angles_mrad, surface_heights
+
+COLUMNS = ("plant", "heliostat", "dataset", "images", "heldout_error_ideal", "heldout_error_calibrated",
+           "named_effects", "pointing_error_mrad", "pointing_error_sigma_mrad", "canting_rms_mrad", "surface_rms_mm",
+           "flags")
+DRAWS = 512  # tracking draws from the covariance for the pointing error's sigma
+EXPLAINED = 2.0  # a remaining error within this many times the noise is explained (diagnosis' threshold)
+
+
+def pointing_error(heliostat: Heliostat, tracking_mrad: torch.Tensor, covariance: np.ndarray | None,
+                   azimuth_deg, elevation_deg, aim_m, seed: int = 0) -> tuple[float, float | None]:
+    """(RMS pointing error (mrad) of the fitted kinematics against the ideal over the sun positions,
+    its standard deviation over DRAWS draws of the tracking parameters from `covariance` ((5, 5)
+    mrad^2; None: no sigma))."""
+    rms = float(pointing_angles_mrad(heliostat, tracking_mrad, azimuth_deg, elevation_deg, aim_m)
+                .pow(2).mean().sqrt())
+    if covariance is None:
+        return rms, None
+    rng = np.random.default_rng(seed)
+    draws = rng.multivariate_normal(np.asarray(tracking_mrad, dtype=np.float64), covariance, DRAWS,
+                                    check_valid="ignore")
+    spread = pointing_angles_mrad(heliostat, torch.as_tensor(draws), azimuth_deg, elevation_deg, aim_m)
+    return rms, float(spread.pow(2).mean(-1).sqrt().std())
+
+
+def heliostat_row(plant: str, heliostat: str, dataset: str, dataset_path: str | os.PathLike,
+                  model_path: str | os.PathLike, diagnosis_path: str | os.PathLike, pointing_limit_mrad: float) -> dict:
+    """One row of the plant table (module docstring) from a heliostat's dataset, physics model and
+    diagnosis."""
+    ds = read_dataset(dataset_path)
+    model, info = load_model(model_path)
+    fitted = getattr(model, "fitted", None)
+    if fitted is None or model.heliostat is None:
+        raise DataError(f"{model_path}: a {info['network']} model has no fitted heliostat; the plant table needs a "
+                        "physics model (plant.model: drt or raytrace)")
+    try:
+        with open(diagnosis_path) as f:
+            diagnosis = json.load(f)
+    except (OSError, ValueError) as exc:
+        raise DataError(f"{diagnosis_path}: cannot read the diagnosis: {exc}") from None
+    tensors = {k: v.detach().cpu().double() for k, v in fitted.tensors.items()}
+    u = fitted.uncertainty
+    flags = []
+    row = {"plant": plant, "heliostat": heliostat, "dataset": dataset, "images": len(ds.images), "heldout_error_ideal": round(float(diagnosis["heldout_error"]), 5),
+           "heldout_error_calibrated": round(float(diagnosis["remaining"]["error"]), 5),
+           "named_effects": ";".join(dict.fromkeys(c.split(":")[0] for c in diagnosis["remaining"]["changes"])),
+           "pointing_error_mrad": "", "pointing_error_sigma_mrad": "", "canting_rms_mrad": "", "surface_rms_mm": ""}
+    if "tracking" in tensors:
+        at = [k for k, n in enumerate(u.names) if n.startswith("tracking.")] if u is not None else []
+        covariance = u.covariance[np.ix_(at, at)] if len(at) == 5 else None
+        rms, sigma = pointing_error(model.heliostat, tensors["tracking"].reshape(5), covariance, ds.azimuth_deg,
+                                    ds.elevation_deg, ds.attrs["target_center_m"])
+        row["pointing_error_mrad"] = round(rms, 4)
+        row["pointing_error_sigma_mrad"] = "" if sigma is None else round(sigma, 4)
+        if rms > pointing_limit_mrad:
+            flags.append(f"pointing > {pointing_limit_mrad:g} mrad")
+        if u is not None and any(n.startswith("tracking.") for n in u.undetermined):
+            flags.append("tracking not determined")
+    if "canting" in tensors:
+        row["canting_rms_mrad"] = round(float(tensors["canting"].pow(2).mean().sqrt()), 4)
+    if "surface" in tensors:
+        row["surface_rms_mm"] = round(float(surface_heights(tensors["surface"]).pow(2).mean().sqrt()), 5)
+    over = float(diagnosis["remaining"].get("over_noise", 0.0))
+    if not diagnosis["remaining"].get("explained", True) and over > EXPLAINED:
+        flags.append(f"residual {over:.1f} x noise")
+    row["flags"] = ";".join(flags)
+    return row
+
+
+def write_plant_table(spec: dict, output_csv: str | os.PathLike) -> list[dict]:
+    """The plant table of `spec` ({"pointing_limit_mrad": float, "heliostats": [{plant, heliostat, dataset,
+    and the paths dataset_path, model_path, diagnosis_path}]}) written to `output_csv`; returns its rows."""
+    rows = [heliostat_row(h["plant"], h["heliostat"], h["dataset"], h["dataset_path"], h["model_path"],
+                          h["diagnosis_path"], spec["pointing_limit_mrad"]) for h in spec["heliostats"]]
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    write_text_atomic(output_csv, text.getvalue())
+    return rows
