@@ -772,17 +772,25 @@ def expand_leave_one_out(config: dict) -> dict:
     folds (leave_one_out_folds), in place of it in `datasets`' order, so that the existing
     import, train, evaluate and diagnose rules run per fold. A fold name already in use raises
     ConfigError."""
+    return _expand_datasets(config, lambda name, ds: leave_one_out_folds(name, ds)
+                            if ds.get("holdout") == LEAVE_ONE_OUT else None, "fold")
+
+
+def _expand_datasets(config: dict, generated, what: str) -> dict:
+    """The config (a copy) with each dataset for which generated(name, entry) gives {name: entry}
+    replaced by those, in its place in `datasets`' order (None: kept); a generated name already in
+    use raises ConfigError."""
     config = copy.deepcopy(config)
     datasets = {}
     for name, ds in config["datasets"].items():
-        if ds.get("holdout") != LEAVE_ONE_OUT:
+        entries = generated(name, ds)
+        if entries is None:
             datasets[name] = ds
             continue
-        folds = leave_one_out_folds(name, ds)
-        taken = sorted(set(folds) & set(config["datasets"]))
+        taken = sorted(set(entries) & set(config["datasets"]))
         if taken:
-            raise ConfigError(f"datasets.{name}: the fold name {taken[0]!r} is already a dataset; rename it")
-        datasets.update(folds)
+            raise ConfigError(f"datasets.{name}: the {what} name {taken[0]!r} is already a dataset; rename it")
+        datasets.update(entries)
     config["datasets"] = datasets
     return config
 
@@ -798,21 +806,14 @@ def expand_plants(config: dict) -> dict:
     heliostat. A generated name already in use raises ConfigError."""
     from helioflow.data.paint import plant_heliostats  # here: `helioflow --help` starts without torch
 
-    config = copy.deepcopy(config)
-    datasets = {}
-    for name, ds in config["datasets"].items():
+    def members(name: str, ds: dict) -> dict | None:
         if "heliostats" not in ds:
-            datasets[name] = ds
-            continue
+            return None
         entry = {k: v for k, v in ds.items() if k != "heliostats"}
-        members = {f"{name}_{h}": {**copy.deepcopy(entry), "heliostat": h, PLANT_KEY: name}
-                   for h in plant_heliostats(ds["paint_dir"], ds["heliostats"])}
-        taken = sorted(set(members) & set(config["datasets"]))
-        if taken:
-            raise ConfigError(f"datasets.{name}: the generated name {taken[0]!r} is already a dataset; rename it")
-        datasets.update(members)
-    config["datasets"] = datasets
-    return config
+        return {f"{name}_{h}": {**copy.deepcopy(entry), "heliostat": h, PLANT_KEY: name}
+                for h in plant_heliostats(ds["paint_dir"], ds["heliostats"])}
+
+    return _expand_datasets(config, members, "generated")
 
 
 def plant_groups(config: dict) -> dict[str, list[str]]:
