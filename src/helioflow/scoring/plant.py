@@ -13,7 +13,8 @@ Columns of results/<experiment>/plant/heliostats.csv:
   of the ideal one, and its standard deviation over draws of the tracking parameters from the fit's
   covariance (models/uncertainty.py; empty where the fit has none);
 - canting_rms_mrad, surface_rms_mm: RMS of the fitted facet tilts and of the fitted surface heights
-  (without each facet's plane, as the fit defines them; empty where the model fits none);
+  (without each facet's plane, as the fit defines them; empty where the model fits none); these carry
+  no sigma here (the per-entry sigmas and the "not determined" flags are in the model's uncertainty);
 - flags: ';'-separated: `pointing > <limit> mrad` (config plant.pointing_limit_mrad),
   `tracking not determined` (a tracking parameter the fit cannot pin down), `residual <k> x noise`
   (what the diagnosis could not explain).
@@ -40,7 +41,6 @@ COLUMNS = ("plant", "heliostat", "dataset", "images", "heldout_error_ideal", "he
            "named_effects", "pointing_error_mrad", "pointing_error_sigma_mrad", "canting_rms_mrad", "surface_rms_mm",
            "flags")
 DRAWS = 512  # tracking draws from the covariance for the pointing error's sigma
-EXPLAINED = 2.0  # a remaining error within this many times the noise is explained (diagnosis' threshold)
 
 
 def pointing_error(heliostat: Heliostat, tracking_mrad: torch.Tensor, covariance: np.ndarray | None,
@@ -96,9 +96,8 @@ def heliostat_row(plant: str, heliostat: str, dataset: str, dataset_path: str | 
         row["canting_rms_mrad"] = round(float(tensors["canting"].pow(2).mean().sqrt()), 4)
     if "surface" in tensors:
         row["surface_rms_mm"] = round(float(surface_heights(tensors["surface"]).pow(2).mean().sqrt()), 5)
-    over = float(diagnosis["remaining"].get("over_noise", 0.0))
-    if not diagnosis["remaining"].get("explained", True) and over > EXPLAINED:
-        flags.append(f"residual {over:.1f} x noise")
+    if not diagnosis["remaining"]["explained"]:  # the diagnosis' own verdict against its noise floor
+        flags.append(f"residual {float(diagnosis['remaining']['over_noise']):.1f} x noise")
     row["flags"] = ";".join(flags)
     return row
 
