@@ -139,6 +139,10 @@ def cmd_train(args) -> None:
 
     dataset = os.path.splitext(os.path.basename(args.dataset))[0]
     spec = _spec(args, lambda config, model: workflow.train_params(config, dataset, model))
+    if spec.get("shared"):  # a plant's heliostat: the shared effects at the plant fit's values
+        from helioflow.diagnosis.shared import with_plant
+
+        spec["settings"]["effects"] = with_plant(spec["settings"]["effects"], spec["shared"])
     train_network(spec["network"], spec["settings"], args.dataset, args.output, args.curve, args.curve_figure,
                   seed=spec["seed"], train_images=spec["train_images"], device=spec.get("device", "cpu"))
 
@@ -154,7 +158,7 @@ def cmd_diagnose(args) -> None:
     figures = {name.removesuffix("-figure"): getattr(args, name.replace("-", "_")) or f"{stem}_{name}.png"
                for name in DIAGNOSIS_FIGURES}
     diagnose_dataset(args.dataset, args.heliostat, spec["effects"], spec["settings"], args.output, figures,
-                     args.ledger or f"{stem}_ledger.json", spec.get("device", "cpu"))
+                     args.ledger or f"{stem}_ledger.json", spec.get("device", "cpu"), spec.get("shared"))
 
 
 def cmd_evaluate(args) -> None:
@@ -231,6 +235,14 @@ def cmd_plant_table(args) -> None:
         raise HelioflowError("give --spec JSON or @FILE, or --config FILE")
     rows = write_plant_table(spec, args.csv)
     logging.info("wrote %s (%d heliostats)", args.csv, len(rows))
+
+
+def cmd_plant_shared(args) -> None:
+    from helioflow.diagnosis.shared import plant_shared
+
+    out = plant_shared(read_spec(args.spec), args.output)
+    for plant, entry in out.items():
+        logging.info("%s: %s", plant, entry["verdict"])
 
 
 def cmd_report(args) -> None:
@@ -367,6 +379,13 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--config", help="instead of --spec: the config file (its plant entries and `plant` section)")
     p.add_argument("--csv", required=True, help="plant/heliostats.csv")
     p.set_defaults(func=cmd_plant_table)
+
+    p = sub.add_parser("plant-shared", help="what a plant's heliostats share (the sun, the camera), fitted once "
+                                            "across them")
+    p.add_argument("--spec", required=True, help="the rule's parameters as JSON, or @FILE (what the Snakefile "
+                                                 "passes: specs/plant_shared.json)")
+    p.add_argument("--output", required=True, help="plant/shared.json")
+    p.set_defaults(func=cmd_plant_shared)
 
     p = sub.add_parser("recovery", help="what a fitted drt model recovered of a synthetic heliostat's true errors")
     p.add_argument("--model", required=True, help="models/<dataset>/drt.pt")

@@ -306,7 +306,7 @@ def train_params(config: dict, dataset: str, model: str) -> dict:
     if network in PHYSICS_MODELS:
         settings.update(effects=model_effects(config, dataset), heliostat_path=heliostat_path(config, dataset))
     return {"network": network, "settings": settings, "seed": config["seed"], "train_images": count,
-            "device": config["device"]}
+            "device": config["device"], "shared": shared_of(config, dataset) if network in PHYSICS_MODELS else None}
 
 
 def train_threads(config: dict, dataset: str, model: str) -> int:
@@ -328,6 +328,7 @@ def train_inputs(config: dict, dataset: str, model: str) -> dict:
     inputs = {"dataset": f"{results_dir(config)}/datasets/{dataset}.h5"}
     if parse_model(model)[0] in PHYSICS_MODELS:
         inputs["heliostat"] = heliostat_path(config, dataset)
+        inputs.update(shared=shared_inputs(config, dataset))
     return inputs
 
 
@@ -340,7 +341,7 @@ def diagnose_params(config: dict, dataset: str) -> dict:
     (config `diagnosis`, defaults DIAGNOSIS_DEFAULTS)."""
     return {"effects": model_effects(config, dataset),
             "settings": {**DIAGNOSIS_DEFAULTS, **copy.deepcopy(config.get("diagnosis") or {})},
-            "device": config["device"]}
+            "device": config["device"], "shared": shared_of(config, dataset)}
 
 
 PLAN_DEFAULTS = {"images": 8, "criterion": "d_optimal", "days": 7.0, "every_minutes": 30.0, "min_elevation_deg": 10.0}
@@ -418,7 +419,7 @@ def report_inputs(config: dict) -> dict[str, list[str]]:
         "field": [f"{r}/field/flux.png", f"{r}/field/metrics.json"] if "field" in config else [],
         "leave_one_out": [p for g in leave_one_out_groups(config)
                           for p in (f"{r}/figures/leave_one_out/{g}.png", f"{r}/leave_one_out/{g}.csv")],
-        "plant": plant_table_path(config),
+        "plant": plant_table_path(config) + plant_shared_path(config),
     }
 
 
@@ -636,7 +637,7 @@ def expand_field(config: dict) -> dict:
     return config
 
 
-SPEC_RULES = ("compose_field", "report", "table", "data_efficiency", "plant_table")  # parameters that grow with the plant
+SPEC_RULES = ("compose_field", "report", "table", "data_efficiency", "plant_table", "plant_shared")  # parameters that grow with the plant
 
 
 def rule_spec(config: dict, rule: str) -> dict:
@@ -653,6 +654,8 @@ def rule_spec(config: dict, rule: str) -> dict:
         return {"metrics": efficiency_metrics(config)}
     if rule == "plant_table":
         return plant_table_spec(config)
+    if rule == "plant_shared":
+        return plant_shared_spec(config)
     raise ConfigError(f"no spec file for rule {rule!r}; rules with one: {', '.join(SPEC_RULES)}")
 
 
@@ -848,6 +851,56 @@ def plant_table_spec(config: dict) -> dict:
                             "dataset_path": f"{r}/datasets/{d}.h5", "model_path": f"{r}/models/{d}/{settings['model']}.pt",
                             "diagnosis_path": f"{r}/diagnosis/{d}.json"}
                            for plant, members in plant_groups(config).items() for d in members]}
+
+
+SHARED_DEFAULTS = {"heliostats": 8, "fit_images": 12, "heldout_images": 16, "fit_steps": 30, "cells_per_side": 16,
+                   "fit_rays": 50_000}
+
+
+def plant_shared_settings(config: dict) -> dict | None:
+    """The plant fit's settings (config plant.shared over SHARED_DEFAULTS), None when the config has
+    no plant entry or sets `plant.shared: null` (each heliostat fitted alone)."""
+    plant = config.get("plant") or {}
+    if not plant_groups(config) or ("shared" in plant and plant["shared"] is None):
+        return None
+    return {**SHARED_DEFAULTS, **copy.deepcopy(plant.get("shared") or {})}
+
+
+def plant_shared_path(config: dict) -> list[str]:
+    """plant/shared.json (rule plant_shared) when the plant fit runs (plant_shared_settings)."""
+    return [f"{results_dir(config)}/plant/shared.json"] if plant_shared_settings(config) is not None else []
+
+
+def plant_shared_spec(config: dict) -> dict:
+    """Parameters and inputs of rule `plant_shared` (diagnosis.shared.plant_shared): the settings and,
+    per plant entry, each heliostat's dataset, geometry and model effects."""
+    r = results_dir(config)
+    return {"settings": plant_shared_settings(config) or {}, "device": config["device"],
+            "plants": {plant: [{"heliostat": config["datasets"][d]["heliostat"], "dataset_path": f"{r}/datasets/{d}.h5",
+                                "heliostat_path": heliostat_path(config, d), "effects": model_effects(config, d)}
+                               for d in members]
+                       for plant, members in plant_groups(config).items()} if plant_shared_path(config) else {}}
+
+
+def plant_shared_inputs(config: dict) -> list[str]:
+    """Files rule `plant_shared` reads (plant_shared_spec's paths)."""
+    return [h[k] for members in plant_shared_spec(config)["plants"].values() for h in members
+            for k in ("dataset_path", "heliostat_path")]
+
+
+def shared_of(config: dict, dataset: str) -> dict | None:
+    """{"path": plant/shared.json, "plant": its entry} for a heliostat of a plant whose shared effects
+    the plant fit sets (rules train and diagnose take them from there), else None."""
+    plant = config["datasets"][dataset].get(PLANT_KEY)
+    if plant is None or FOLD_KEY in config["datasets"][dataset] or not plant_shared_path(config):
+        return None
+    return {"path": plant_shared_path(config)[0], "plant": plant}
+
+
+def shared_inputs(config: dict, dataset: str) -> list[str]:
+    """[plant/shared.json] for a dataset shared_of gives one, else []."""
+    shared = shared_of(config, dataset)
+    return [] if shared is None else [shared["path"]]
 
 
 def plant_table_inputs(config: dict) -> list[str]:

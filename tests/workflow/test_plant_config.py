@@ -91,3 +91,30 @@ def test_a_traced_dataset_with_heliostats_is_told_the_key_is_for_paint():
     config["datasets"]["scan"]["heliostats"] = "all"
     with pytest.raises(ConfigError, match="datasets.scan: key 'heliostats' is for PAINT datasets"):
         validate_config(config)
+
+
+def test_every_heliostat_of_a_plant_takes_the_plant_fits_shared_effects():
+    from helioflow.workflow import (
+        diagnose_params,
+        plant_shared_spec,
+        results_dir,
+        shared_inputs,
+        train_inputs,
+        train_params,
+    )
+
+    config = expand_config(validate_config(_config({"heliostats": ["AA31", "AA39"]})))
+    config["networks"] = {"drt": {}, "gan": {}}
+    spec = plant_shared_spec(config)
+    assert [h["heliostat"] for h in spec["plants"]["jul"]] == ["AA31", "AA39"]
+    assert spec["settings"]["heliostats"] == 8 and spec["plants"]["jul"][0]["effects"] == config["model"]["effects"]
+    path = shared_inputs(config, "jul_AA31")[0]
+    assert path == f"{results_dir(config)}/plant/shared.json"
+    assert diagnose_params(config, "jul_AA39")["shared"] == {"path": path, "plant": "jul"}
+    assert train_params(config, "jul_AA39", "drt")["shared"] == {"path": path, "plant": "jul"}
+    assert train_inputs(config, "jul_AA39", "drt")["shared"] == [path]
+    assert train_params(config, "jul_AA39", "gan")["shared"] is None  # a network learns the images as they are
+    assert diagnose_params(config, "sky")["shared"] is None and shared_inputs(config, "sky") == []
+    config["plant"] = {"shared": None}  # each heliostat alone: no plant fit
+    assert shared_inputs(config, "jul_AA39") == [] and plant_shared_spec(config)["plants"] == {}
+    assert diagnose_params(config, "jul_AA39")["shared"] is None

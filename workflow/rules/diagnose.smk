@@ -3,6 +3,7 @@ rule diagnose:
     input:
         dataset=f"{RESULTS}/datasets/{{dataset}}.h5",
         heliostat=lambda wc: heliostat_path(config, wc.dataset),
+        shared=lambda wc: shared_inputs(config, wc.dataset),  # a plant's heliostat: the plant fit's shared effects
     output:
         diagnosis=f"{RESULTS}/diagnosis/{{dataset}}.json",
         signatures=f"{RESULTS}/figures/diagnosis/{{dataset}}_signatures.png",

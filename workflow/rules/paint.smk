@@ -102,3 +102,23 @@ rule plant_table:
     threads: TORCH_THREADS
     shell:
         "helioflow --threads {params.torch_threads:q} plant-table --spec @{input.spec:q} --csv {output:q} > {log:q} 2>&1"
+
+
+rule plant_shared:
+    """What each plant's heliostats share (the sun, the camera), fitted once across them; every
+    heliostat's physics model and diagnosis take these values (helioflow.diagnosis.shared)."""
+    input:
+        plant_shared_inputs(config),
+        spec=spec_path(config, "plant_shared"),
+    output:
+        f"{RESULTS}/plant/shared.json",
+    params:
+        torch_threads=TORCH_THREADS,
+    log:
+        f"{RESULTS}/logs/plant_shared/plant_shared.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/plant_shared/plant_shared.tsv"
+    threads: TORCH_THREADS
+    shell:
+        "helioflow --threads {params.torch_threads:q} plant-shared --spec @{input.spec:q} --output {output:q}"
+        " > {log:q} 2>&1"

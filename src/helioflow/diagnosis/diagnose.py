@@ -141,12 +141,20 @@ class Diagnosis:
     """One dataset against one model effect list: fits, scores and ranks (see module doc)."""
 
     def __init__(self, scene: Scene, effects: dict, train: Measurements, heldout: Measurements,
-                 settings: FitSettings, max_effects: int = 2):
+                 settings: FitSettings, max_effects: int = 2, plant: str = ""):
+        """`plant`: the shared effects (the registry's `shared_by`) were fitted across this plant's
+        heliostats (diagnosis/shared.py): no change to them is tried here."""
         self.scene, self.effects, self.train, self.heldout = scene, effects, train, heldout
         self.max_effects = max_effects
         self.settings = FitSettings(**{**vars(settings), "loss": "shape"})
         known = frozenset({"neighbours"} if scene.neighbours is not None and len(scene.neighbours) else ())
         self.tried, self.skipped = candidates(effects, scene.heliostat.n_facets, known)
+        if plant:
+            shared = sorted({c.effect for c in self.tried if REGISTRY[c.effect].shared_by})
+            self.tried = [c for c in self.tried if not REGISTRY[c.effect].shared_by]
+            self.skipped += [{"effect": e, "reason": f"shared by every heliostat of plant {plant} "
+                                                     f"({REGISTRY[e].shared_by}): fitted once across them "
+                                                     "(plant/shared.json)"} for e in shared]
         self.candidate = {c.label: c for c in self.tried}
         self.fits: dict[frozenset, tuple[float, FitResult]] = {}
         self.noise = measure_noise(torch.cat((train.images, heldout.images)))
@@ -608,7 +616,7 @@ def _measurements(ds, index: np.ndarray, scale: float, device: str | torch.devic
 
 
 def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict, output_json, figures: dict,
-                     ledger_path, device: str = "cpu") -> dict:
+                     ledger_path, device: str = "cpu", shared: dict | None = None) -> dict:
     """The `diagnose` rule: diagnosis/{dataset}.json and its figures (keys of `figures`:
     signatures, ranking, residuals, ledger).
 
@@ -616,8 +624,13 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
         effects: the model's effect list for this dataset.
         settings: fit_images, heldout_images, fit_steps, rounds, cells_per_side, fit_rays, max_effects.
         device: where the fits run (cpu | cuda | auto).
+        shared: a plant's heliostat: {"path": plant/shared.json, "plant": its entry}; the model takes
+            the plant's shared effects at their fitted values and no change to them is tried.
     """
     from helioflow.diagnosis.figures import plot_diagnosis
+    from helioflow.diagnosis.shared import with_plant  # it builds on this module
+
+    effects = with_plant(effects, shared)
 
     ds = read_dataset(dataset_path)
     read_ledger(ledger_path)  # a broken ledger stops the rule before the fits, not after them
@@ -631,7 +644,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     fit = FitSettings(steps=settings["fit_steps"], rounds=settings["rounds"])
     diagnosis = Diagnosis(fit_scene, effects, _measurements(ds, pick(train_index, settings["fit_images"]), scale, device),
                           _measurements(ds, pick(heldout_index, settings["heldout_images"]), scale, device), fit,
-                          settings["max_effects"])
+                          settings["max_effects"], plant=(shared or {}).get("plant", ""))
     before, model, ranking, skipped, chosen = diagnosis.rank()
     remaining = diagnosis.remaining(chosen)
     final = with_uncertainty(fit_scene, diagnosis.fitted(chosen)[1], diagnosis.train, "shape")
@@ -664,6 +677,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     result = {
         "dataset": ds.attrs.get("dataset", Path(dataset_path).stem),
         "model_effects": effects,
+        "plant": None if shared is None else {"entry": shared["plant"], "shared_effects_from": shared["path"]},
         "model_hash": model_hash(effects),
         "error_measure": ERROR_MEASURE,
         "threshold": {"relative_reduction": THRESHOLD, "absolute_reduction": ABSOLUTE_FLOOR,

@@ -145,6 +145,9 @@ class Effect:
             in for another effect (keys as the diagnosis' fitted values: "<parameter>", or
             "<tensor key>_rms"; "*" for every parameter).
         separated_from: {other effect: the measurement that tells the two apart}.
+        shared_by: what makes it the same for every heliostat photographed in one calibration
+            campaign ("the sun of the campaign"); empty for a heliostat's own effect. A plant's
+            shared effects are fitted once across its heliostats (diagnosis/shared.py).
     """
 
     name: str
@@ -166,6 +169,7 @@ class Effect:
     signature_text: str = ""
     plausible: dict = field(default_factory=dict)
     separated_from: dict = field(default_factory=dict)
+    shared_by: str = ""
 
     def parameter(self, name: str) -> Parameter:
         return next(p for p in self.parameters if p.name == name)

@@ -27,4 +27,5 @@ EFFECT = Effect(
     missing_text="the camera's response (background and blur)",
     signature_text="{outside:.1%} of the measured flux lies outside the model's spot (background or blur)",
     plausible={"blur_px": (0.0, 3.0, "a camera blur of many pixels")},
+    shared_by="the camera and the target",
 )

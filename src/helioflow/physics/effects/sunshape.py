@@ -46,4 +46,5 @@ EFFECT = Effect(
     separated_from={"slope_error": "a measurement of the sun shape (a sun camera, or the circumsolar ratio of the "
                                    "calibration days)",
                     "camera": "a sun-shape measurement, or images at another target distance"},
+    shared_by="the sun of the campaign",
 )

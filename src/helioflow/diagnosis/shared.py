@@ -1,0 +1,347 @@
+"""What a plant's heliostats share: the sun and the camera, fitted once across heliostats.
+
+One heliostat on one target cannot tell a wider sun, a camera blur and a slope error apart: each
+widens its spot. But every heliostat photographed in one calibration campaign sees the same sun and
+is photographed by the same camera on the same target (the registry's `shared_by` effects), while
+a slope error, a canting or a tracking error is each heliostat's own. The plant fit uses that:
+
+1. It takes up to `heliostats` of a plant's heliostats, evenly across the plant's list (a plant of
+   thousands shares one sun and one camera: a few dozen heliostats determine them as well as all).
+2. Each heliostat keeps its own rigid effects free (`OWN`: tracking, canting, slope error; the
+   surface is left to its own fit and diagnosis), fitted on its training images with the
+   diagnosis' shape loss.
+3. Every change to a shared effect the diagnosis would try (the camera added, the sun's width
+   freed, the sun switched to another profile: diagnosis/candidates.py) is fitted jointly: first
+   each heliostat alone (its own effects and the change's values), then the change's spread values
+   (the camera's blur, the sun's width) set to the minimum of the loss summed over the heliostats
+   (SciPy's bounded Powell search, each heliostat's own values held), and each heliostat refitted
+   with them fixed, ALTERNATIONS times. The camera's gain and background stay each heliostat's own
+   (per image in closed form: exposure and daylight change from image to image).
+4. A change is shared when it cuts the plant's held-out error (the mean over the heliostats of the
+   misplaced flux fraction on their held-out images) meaningfully (diagnose.is_meaningful); the
+   best one, then the best with one more change of another shared effect, as long as each step
+   counts.
+5. Each shared value carries its sigma: the heliostats' own fits are independent given the shared
+   values, so their information adds: 1 / sigma^2 = sum over heliostats of 1 / sigma_h^2, sigma_h
+   the value's marginal sigma in heliostat h's fit with the value freed at the joint optimum
+   (models/uncertainty.py). Beside it, what each heliostat alone makes of the value (its own fit
+   with the value free: the confounded answer one heliostat gets) and the chi^2 per degree of
+   freedom of those against the shared value.
+
+Every heliostat's physics model and diagnosis then take the shared effects at these values
+(`shared_effects`) and try no change to a shared effect themselves (workflow: plant.shared).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy.optimize import minimize
+
+from helioflow.data.hdf5 import read_dataset
+from helioflow.data.surfaces import read_heliostat
+from helioflow.device import resolve_device
+from helioflow.diagnosis.candidates import Candidate, candidates
+from helioflow.diagnosis.diagnose import _measurements, is_meaningful, scoring_split
+from helioflow.errors import DataError
+from helioflow.io import write_text_atomic
+from helioflow.models.physical import drt_effects
+from helioflow.models.physics_fit import (
+    OFFSETS,
+    SCALES,
+    SEARCH_CEILING,
+    SEARCH_FLOOR,
+    FitResult,
+    FitSettings,
+    Measurements,
+    fit_effects,
+    fit_loss,
+    with_uncertainty,
+)
+from helioflow.physics.effects import FIT, REGISTRY, fitted_parameters
+from helioflow.physics.scene import Scene, dataset_scene
+from helioflow.scoring.metrics import misplaced_flux
+
+log = logging.getLogger(__name__)
+
+OWN = "tracking, canting and slope error"  # each heliostat's own effects during the plant fit (drt without surface)
+ALTERNATIONS = 2  # shared values searched, then every heliostat refitted with them, this many times
+
+
+def is_shared(effect: str) -> bool:
+    """Whether a registry effect is the same for every heliostat of a calibration campaign."""
+    return bool(REGISTRY[effect].shared_by)
+
+
+@dataclass
+class Member:
+    """One heliostat of the plant fit: its scene and its train / held-out measurements."""
+
+    heliostat: str
+    scene: Scene
+    train: Measurements
+    heldout: Measurements
+
+
+@dataclass
+class Joint:
+    """A joint fit of the plant: the shared values, each heliostat's fit, its held-out error."""
+
+    labels: frozenset
+    shared: dict[str, float]  # "effect.parameter" -> value
+    fits: list[FitResult]
+    errors: list[float]
+
+    @property
+    def error(self) -> float:
+        return float(np.mean(self.errors))
+
+
+class PlantFit:
+    """The plant's heliostats against one model effect list: the shared changes, fitted jointly."""
+
+    def __init__(self, members: list[Member], effects: dict, settings: FitSettings):
+        self.members, self.effects = members, effects
+        self.settings = FitSettings(**{**vars(settings), "loss": "shape"})
+        n_facets = members[0].scene.heliostat.n_facets
+        self.tried: list[Candidate] = [c for c in candidates(effects, n_facets)[0] if is_shared(c.effect)]
+        self.candidate = {c.label: c for c in self.tried}
+        self.joints: dict[frozenset, Joint] = {}
+        self.alone: dict[frozenset, list[FitResult]] = {}
+
+    def effects_with(self, labels) -> dict:
+        """The plant fit's effect list (the model's, each heliostat's own rigid effects "fit") with
+        the changes `labels` applied."""
+        out = {e: dict(p or {}) for e, p in self.effects.items()}
+        for label in labels:
+            c = self.candidate[label]
+            out[c.effect] = dict(c.params)
+        return drt_effects(out, self.members[0].scene.heliostat.n_facets, surface=False)
+
+    def shared_spreads(self, effects: dict) -> list[tuple[str, str]]:
+        """The fitted spread scalars of shared effects in an effect list: what the heliostats share."""
+        return [(e, k) for e, k in fitted_parameters(effects)
+                if is_shared(e) and REGISTRY[e].parameter(k).role == "spread"]
+
+    def joint(self, labels) -> Joint:
+        """The joint fit of the model with the changes `labels` (module docstring, step 3); nested:
+        each heliostat starts from its fit with one change fewer."""
+        key = frozenset(labels)
+        if key in self.joints:
+            return self.joints[key]
+        effects = self.effects_with(key)
+        starts = [None] * len(self.members)
+        if key:
+            starts = min((self.joint(key - {label}) for label in key), key=lambda j: j.error).fits
+        fits = [fit_effects(m.scene, effects, m.train, self.settings, start=s) for m, s in zip(self.members, starts)]
+        self.alone[key] = fits
+        spreads = self.shared_spreads(effects)
+        shared: dict[str, float] = {}
+        for _ in range(ALTERNATIONS if spreads else 0):
+            shared = self.common(effects, fits, spreads)
+            fixed = with_values(effects, shared)
+            fits = [fit_effects(m.scene, fixed, m.train, self.settings, start=f) for m, f in zip(self.members, fits)]
+        errors = []
+        for m, f in zip(self.members, fits):
+            with torch.no_grad():
+                pred, lost = m.scene.simulate(f.effects, f.tensors, m.heldout.azimuth_deg, m.heldout.elevation_deg,
+                                              with_lost=True)
+            errors.append(float(misplaced_flux(pred, m.heldout.images, lost).mean()))
+        self.joints[key] = Joint(key, shared, fits, errors)
+        log.info("plant + %s: held-out error %.4f %s", " + ".join(sorted(key)) or "nothing", self.joints[key].error,
+                 shared)
+        return self.joints[key]
+
+    def common(self, effects: dict, fits: list[FitResult], spreads: list[tuple[str, str]]) -> dict[str, float]:
+        """The shared spread values that minimise the loss summed over the heliostats, each
+        heliostat's own values held at `fits` (SciPy's bounded Powell search on a log scale)."""
+        names = [f"{e}.{k}" for e, k in spreads]
+        bounds = []
+        for e, k in spreads:
+            p = REGISTRY[e].parameter(k)
+            bounds.append((math.log(max(p.lower or SEARCH_FLOOR, SEARCH_FLOOR)),
+                           math.log(min(p.upper or SEARCH_CEILING, SEARCH_CEILING))))
+        start = [float(np.clip(np.median([math.log(max(f.effects[e][k], SEARCH_FLOOR)) for f in fits]), *b))
+                 for (e, k), b in zip(spreads, bounds)]
+        linear = [p for p in fitted_parameters(effects) if p in SCALES or p in OFFSETS]
+
+        def cost(x: np.ndarray) -> float:
+            values = dict(zip(names, np.exp(x).tolist()))
+            return sum(fit_loss(m.scene, with_values(refit_linear(f.effects, linear), values), f.tensors, m.train,
+                                "shape") for m, f in zip(self.members, fits))
+
+        found = minimize(cost, np.asarray(start), method="Powell", bounds=bounds, options={"xtol": 1e-3, "ftol": 1e-9})
+        return {n: round(float(v), 4) for n, v in zip(names, np.exp(found.x))}
+
+    def select(self, max_changes: int) -> list[str]:
+        """The shared changes the plant needs: the best that counts alone, then the best with one
+        more change of another shared effect while it counts (diagnose.is_meaningful)."""
+        chosen: list[str] = []
+        for _ in range(max_changes):
+            effects = {self.candidate[c].effect for c in chosen}
+            options = [c.label for c in self.tried if c.effect not in effects]
+            if not options:
+                break
+            best = min(options, key=lambda label: self.joint([*chosen, label]).error)
+            if not is_meaningful(self.joint(chosen).error, self.joint([*chosen, best]).error):
+                break
+            chosen.append(best)
+        return chosen
+
+    def sigma(self, key: frozenset) -> dict[str, dict]:
+        """Per shared value: its sigma over the plant and each heliostat's own answer (module docstring, 5)."""
+        joint = self.joints[key]
+        effects = self.effects_with(key)
+        spreads = self.shared_spreads(effects)
+        out = {}
+        for e, k in spreads:
+            name = f"{e}.{k}"
+            at_joint = [self._sigma(m, FitResult(with_values(f.effects, {name: joint.shared[name]}), f.tensors,
+                                                  fitted=fitted_parameters(effects)), name)
+                        for m, f in zip(self.members, joint.fits)]
+            alone = [(float(f.effects[e][k]), self._sigma(m, f, name)) for m, f in zip(self.members, self.alone[key])]
+            information = sum(1.0 / s ** 2 for s in at_joint if s > 0)
+            sigma = information ** -0.5 if information > 0 else float("inf")
+            chi2 = [((v - joint.shared[name]) / s) ** 2 for v, s in alone if s > 0]
+            out[name] = {"value": joint.shared[name], "sigma": round(sigma, 5),
+                         "alone": {m.heliostat: {"value": round(v, 4), "sigma": round(s, 5)}
+                                   for m, (v, s) in zip(self.members, alone)},
+                         "alone_chi2_per_dof": round(sum(chi2) / max(len(chi2) - 1, 1), 3)}
+        return out
+
+    def _sigma(self, member: Member, fit: FitResult, name: str) -> float:
+        """The marginal sigma of the fitted value `name` in one heliostat's fit."""
+        u = with_uncertainty(member.scene, fit, member.train, "shape").uncertainty
+        return float(u.sigma[u.index(name)])
+
+
+def with_values(effects: dict, values: dict[str, float]) -> dict:
+    """A copy of an effect list with the values {"effect.parameter": value} set."""
+    out = {e: dict(p) for e, p in effects.items()}
+    for name, value in values.items():
+        e, k = name.split(".")
+        out[e][k] = value
+    return out
+
+
+def refit_linear(effects: dict, linear: list[tuple[str, str]]) -> dict:
+    """A fitted effect list with its linear scalars marked "fit" again (fitted in closed form anew)."""
+    out = {e: dict(p) for e, p in effects.items()}
+    for e, k in linear:
+        out[e][k] = FIT
+    return out
+
+
+def shared_effects(effects: dict, chosen: list[Candidate], shared: dict[str, float]) -> dict:
+    """The shared effects every heliostat's model takes: the model's shared effects as configured,
+    the chosen changes applied with their shared values (linear scalars stay "fit": each heliostat's
+    own exposure)."""
+    out = {e: dict(p or {}) for e, p in effects.items() if is_shared(e)}
+    for c in chosen:
+        out[c.effect] = dict(c.params)
+    return with_values(out, shared)
+
+
+def plant_shared(spec: dict, output_json: str | os.PathLike) -> dict:
+    """Rule `plant_shared`: plant/shared.json, per plant entry what its heliostats share.
+
+    spec: {"settings": heliostats, fit_images, heldout_images, fit_steps, cells_per_side, fit_rays
+    (workflow.SHARED_DEFAULTS), "device": ..., "plants": {plant: [{"heliostat", "dataset_path",
+    "heliostat_path", "effects"}]}} (workflow.plant_shared_spec)."""
+    settings = spec["settings"]
+    device = resolve_device(spec.get("device", "cpu"))
+    out = {}
+    for plant, heliostats in spec["plants"].items():
+        picked = [heliostats[i] for i in np.linspace(0, len(heliostats) - 1, min(settings["heliostats"], len(heliostats)))
+                  .round().astype(int)]
+        out[plant] = fit_plant(plant, [member(h, settings, device) for h in picked], picked[0]["effects"], settings,
+                               len(heliostats))
+    write_text_atomic(output_json, json.dumps(out, indent=1))
+    return out
+
+
+def member(entry: dict, settings: dict, device) -> Member:
+    """A heliostat of the plant fit from its dataset and geometry files (the diagnosis' split and scale)."""
+    ds = read_dataset(entry["dataset_path"])
+    train_index, heldout_index, _ = scoring_split(ds)
+    pick = lambda index, n: index[np.linspace(0, len(index) - 1, min(n, len(index))).round().astype(int)]
+    scale = float(ds.images[train_index].max())
+    heliostat = read_heliostat(entry["heliostat_path"]).ideal().to(device)
+    scene = dataset_scene(heliostat, ds.attrs, tuple(ds.images.shape[1:]), settings["cells_per_side"],
+                          settings["fit_rays"], True)
+    return Member(entry["heliostat"], scene, _measurements(ds, pick(train_index, settings["fit_images"]), scale, device),
+                  _measurements(ds, pick(heldout_index, settings["heldout_images"]), scale, device))
+
+
+def fit_plant(plant: str, members: list[Member], effects: dict, settings: dict, n_heliostats: int) -> dict:
+    """One plant entry's shared effects (module docstring) as shared.json holds them."""
+    fit = PlantFit(members, effects, FitSettings(steps=settings["fit_steps"], rounds=1))
+    n_shared = len({c.effect for c in fit.tried})
+    chosen = fit.select(n_shared)
+    key = frozenset(chosen)
+    final = fit.joint(chosen)
+    before = fit.joint(()).error
+    values = fit.sigma(key)
+    tried = []
+    for c in fit.tried:
+        j = fit.joint([c.label])
+        tried.append({"change": c.label, "effect": c.effect, "heldout_error": round(j.error, 5),
+                      "relative_reduction": round(1.0 - j.error / max(before, 1e-30), 4),
+                      "meaningful": is_meaningful(before, j.error), "shared_values": j.shared})
+    kept = shared_effects(effects, [fit.candidate[c] for c in chosen], final.shared)
+    return {
+        "heliostats": n_heliostats,
+        "heliostats_fitted": [m.heliostat for m in members],
+        "own_effects": OWN,
+        "heldout_error": {"model": round(before, 5), "shared": round(final.error, 5)},
+        "per_heliostat_heldout_error": {m.heliostat: round(e, 5) for m, e in zip(members, final.errors)},
+        "changes": chosen,
+        "shared": [{"effect": e, "shared_by": REGISTRY[e].shared_by, "params": p,
+                    "changed": e in {fit.candidate[c].effect for c in chosen},
+                    "values": {n: v for n, v in values.items() if n.startswith(e + ".")}}
+                   for e, p in kept.items()],
+        "effects": kept,
+        "tried": tried,
+        "verdict": plant_verdict(len(members), before, final.error, chosen, kept, values),
+    }
+
+
+def plant_verdict(n: int, before: float, after: float, chosen: list[str], kept: dict, values: dict) -> str:
+    """One paragraph: what the plant's heliostats share, with the shared values and their sigma."""
+    if not chosen:
+        words = [f"No change to the shared effects ({', '.join(sorted(kept)) or 'none in the model'}) cuts the "
+                 f"held-out error of the {n} heliostats meaningfully: they are kept as configured."]
+    else:
+        numbers = "; ".join(f"{name} = {v['value']:.4g} +- {v['sigma']:.2g}" for name, v in values.items())
+        words = [f"Shared by the {n} heliostats fitted: {', '.join(chosen)}"
+                 + (f" ({numbers})" if numbers else "")
+                 + f": the plant's held-out error falls from {before:.4f} to {after:.4f}."]
+    rest = sorted(set(kept) - {c.split(":")[0] for c in chosen})
+    if chosen and rest:
+        words.append(f"Kept as configured: {', '.join(rest)}.")
+    words.append(f"Each heliostat's own effects ({OWN}, its surface) are left to its own fit and diagnosis, "
+                 "which take the shared effects at these values.")
+    return " ".join(words)
+
+
+def with_plant(effects: dict, shared: dict | None) -> dict:
+    """A heliostat's model effects with its plant's shared effects (`shared`: {"path": plant/shared.json,
+    "plant": its entry}, workflow.shared_of; None: unchanged) at the plant fit's values."""
+    if shared is None:
+        return effects
+    try:
+        with open(shared["path"]) as f:
+            plants = json.load(f)
+        kept = plants[shared["plant"]]["effects"]
+    except (OSError, ValueError) as exc:
+        raise DataError(f"{shared['path']}: cannot read the plant fit: {exc}") from None
+    except (KeyError, TypeError):
+        raise DataError(f"{shared['path']}: no shared effects of plant {shared['plant']!r}; rerun rule "
+                        "plant_shared") from None
+    return {**{e: p for e, p in effects.items() if not is_shared(e)}, **kept}

@@ -1,0 +1,73 @@
+"""The plant fit (diagnosis/shared.py) on a plant it was not made for: PAINT folders of AA39's design
+at their own pivots, made by the independent Monte Carlo of tests/paint_world.py (8-bit PNGs),
+under one Gaussian sun the model is told and one camera it is not (background 3 % of the peak,
+blur 1.5 px), each heliostat hiding its own tracking error and on most a canting error, a surface
+bump or a slope error. The camera is what they share: the plant fit names it, and finds its blur;
+the sun it leaves as configured; each heliostat alone makes less certain of the blur than the plant.
+"""
+
+import json
+
+import numpy as np
+import pytest
+from paint_world import plant_worlds, write_plant
+
+from helioflow.data.paint import import_paint
+from helioflow.diagnosis.shared import plant_shared, with_plant
+from helioflow.errors import DataError
+from helioflow.workflow import SHARED_DEFAULTS
+
+N, N_IMAGES, HELD_OUT, RAYS, SEED = 4, 16, 4, 300_000, 3
+BELIEVED = {"sunshape": {"kind": "gaussian", "sigma_mrad": 2.51}}  # the world's sun, as in workflow/variants/plant_demo
+TRUE_BLUR_PX = 1.5  # plant_worlds' camera
+
+
+@pytest.fixture(scope="module")
+def plant(tmp_path_factory):
+    """(shared.json's entry of the plant, its path)."""
+    folder = tmp_path_factory.mktemp("plant")
+    truth = write_plant(folder, plant_worlds(N, SEED), N_IMAGES, RAYS, SEED)
+    ids = [str(100_000 + i) for i in range(N_IMAGES)]
+    held = list(np.random.default_rng(0).choice(ids, HELD_OUT, replace=False))
+    entries = []
+    for name in truth:
+        import_paint(folder, name, folder / f"{name}.h5", folder / f"{name}_geometry.h5", holdout=held, dataset=name)
+        entries.append({"heliostat": name, "dataset_path": str(folder / f"{name}.h5"),
+                        "heliostat_path": str(folder / f"{name}_geometry.h5"), "effects": BELIEVED})
+    spec = {"settings": {**SHARED_DEFAULTS, "fit_images": N_IMAGES - HELD_OUT, "heldout_images": HELD_OUT},
+            "device": "cpu", "plants": {"plant": entries}}
+    path = folder / "shared.json"
+    return plant_shared(spec, path)["plant"], path
+
+
+@pytest.mark.slow
+def test_the_plant_fit_names_the_shared_camera_and_finds_its_blur(plant):
+    shared, _ = plant
+    assert shared["changes"] == ["camera"], shared["verdict"]
+    assert shared["heldout_error"]["shared"] <= 0.75 * shared["heldout_error"]["model"]
+    blur = next(s for s in shared["shared"] if s["effect"] == "camera")["values"]["camera.blur_px"]
+    assert abs(blur["value"] - TRUE_BLUR_PX) <= max(3 * blur["sigma"], 0.25), blur
+    sun = next(s for s in shared["shared"] if s["effect"] == "sunshape")
+    assert not sun["changed"] and sun["params"] == BELIEVED["sunshape"]  # the told sun is kept
+    alone = [a["sigma"] for a in blur["alone"].values()]
+    assert blur["sigma"] < min(alone)  # the plant pins the blur down better than any heliostat alone
+    assert shared["effects"]["camera"]["gain"] == "fit"  # exposure stays each heliostat's own
+
+
+@pytest.mark.slow
+def test_every_heliostat_takes_the_shared_effects_at_the_plant_values(plant):
+    shared, path = plant
+    own = {"sunshape": {"kind": "pillbox"}, "tracking": {"axis1_offset_mrad": "fit"}}
+    effects = with_plant(own, {"path": str(path), "plant": "plant"})
+    assert effects["tracking"] == own["tracking"]  # a heliostat's own effect stays
+    assert effects["camera"] == shared["effects"]["camera"] and effects["sunshape"] == shared["effects"]["sunshape"]
+    with pytest.raises(DataError, match="no shared effects of plant 'elsewhere'"):
+        with_plant(own, {"path": str(path), "plant": "elsewhere"})
+
+
+def test_a_missing_plant_fit_is_one_clear_error(tmp_path):
+    (tmp_path / "shared.json").write_text(json.dumps({"plant": {}}))
+    with pytest.raises(DataError, match="shared.json: no shared effects of plant 'plant'"):
+        with_plant({}, {"path": str(tmp_path / "shared.json"), "plant": "plant"})
+    with pytest.raises(DataError, match="cannot read the plant fit"):
+        with_plant({}, {"path": str(tmp_path / "absent.json"), "plant": "plant"})
