@@ -419,7 +419,8 @@ def report_inputs(config: dict) -> dict[str, list[str]]:
         "field": [f"{r}/field/flux.png", f"{r}/field/metrics.json"] if "field" in config else [],
         "leave_one_out": [p for g in leave_one_out_groups(config)
                           for p in (f"{r}/figures/leave_one_out/{g}.png", f"{r}/leave_one_out/{g}.csv")],
-        "plant": plant_table_path(config) + plant_shared_path(config),
+        "plant": plant_table_path(config),
+        "plant_shared": plant_shared_path(config),
     }
 
 

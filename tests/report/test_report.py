@@ -248,6 +248,7 @@ def test_report_inputs_of_the_tiny_config_list_the_expected_files():
         "dataset_figures": [f"{r}/figures/datasets/scan.png", f"{r}/figures/datasets/sky.png"],
         "paint_centroids": [], "table": [], "samples": [], "psnr": [], "data_efficiency": [], "recovery": [],
         "plan": [], "diagnosis": [], "diagnosis_figures": [], "field": [], "leave_one_out": [], "plant": [],
+        "plant_shared": [],
     }
     config = copy.deepcopy(config)
     config.update(networks={"nearest": {}}, diagnosis={}, field={})

@@ -52,7 +52,8 @@ from helioflow.report.html import (
 )
 
 SECTIONS = ("datasets", "dataset_figures", "paint_centroids", "table", "samples", "psnr", "data_efficiency",
-            "recovery", "plan", "diagnosis", "diagnosis_figures", "field", "leave_one_out", "plant")
+            "recovery", "plan", "diagnosis", "diagnosis_figures", "field", "leave_one_out", "plant",
+            "plant_shared")
 PLANT_WORST = 20  # heliostats listed in the report's plant section
 ABSENT = '<p class="absent">Not part of this experiment.</p>'
 
@@ -187,7 +188,7 @@ def _plant_section(files: dict[str, list[str]]) -> str:
     diagnoses named how often, and the PLANT_WORST heliostats with the largest pointing error."""
     from helioflow.scoring.plant import COLUMNS
 
-    parts = []
+    parts = [_shared_part(path) for path in files["plant_shared"]]
     for path in files["plant"]:
         try:
             records = list(csv.DictReader(io.StringIO(read_bytes(path).decode("utf-8"))))
@@ -216,6 +217,28 @@ def _plant_section(files: dict[str, list[str]]) -> str:
     return "\n".join(parts)
 
 
+def _shared_part(path: str) -> str:
+    """plant/shared.json (diagnosis.shared): per plant entry the verdict, the shared values with their
+    sigma beside what each heliostat alone makes of them, and every shared change tried."""
+    data = read_json(path)
+    if not isinstance(data, dict) or not all(isinstance(v, dict) and "verdict" in v for v in data.values()):
+        raise DataError(f"{path}: not a plant fit (written by `plant-shared`): needs a verdict per plant entry")
+    parts = []
+    for plant, entry in data.items():
+        values = [[name, f"{fixed(v['value'], 4)} ± {fixed(v['sigma'], 2)}",
+                   ", ".join(f"{h} {fixed(a['value'], 3)} ± {fixed(a['sigma'], 2)}" for h, a in v["alone"].items()),
+                   fixed(v["alone_chi2_per_dof"], 2)]
+                  for s in entry.get("shared", []) for name, v in s.get("values", {}).items()]
+        tried = [[t["change"], fixed(t["heldout_error"], 4), f"{100 * t['relative_reduction']:.0f} %",
+                  "yes" if t["meaningful"] else "no"] for t in entry.get("tried", [])]
+        parts += [f"<h3>Shared by the heliostats of {esc(plant)}</h3>", f"<p>{esc(entry['verdict'])}</p>",
+                  table(["shared value", "plant fit ± sigma", "each heliostat alone ± sigma", "chi^2 / dof alone"],
+                        values) if values else "",
+                  table(["shared change tried", "plant held-out error", "cut", "counts"], tried),
+                  download(path, "application/json")]
+    return "\n".join(parts)
+
+
 # (anchor, heading, the input sections it shows, renderer of the files by section)
 LAYOUT = (
     ("datasets", "Datasets", ("datasets", "dataset_figures", "paint_centroids"), _datasets_section),
@@ -228,7 +251,7 @@ LAYOUT = (
     ("ledger", "Error ledger", ("diagnosis",), ledger_section),
     ("field", "Field flux maps", ("field",), _field_section),
     ("leave_one_out", "Leave-one-out on real images", ("leave_one_out",), _leave_one_out_section),
-    ("plant", "The plant", ("plant",), _plant_section),
+    ("plant", "The plant", ("plant_shared", "plant"), _plant_section),
 )
 
 
