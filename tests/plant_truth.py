@@ -1,0 +1,107 @@
+"""A plant run scored against the truth of the independent generator that made its images
+(tests/paint_world.py `write_plant`: truth.json beside the PAINT folders).
+
+Per heliostat: the effects its diagnosis named against those hidden (a tracking error always; a
+canting, bump = registry `surface` or slope = `slope_error` on most), and the pointing recovered:
+the RMS over the dataset's sun positions of the difference between the fitted kinematics' deviation
+of the mirror normal from its ideal (helioflow's, the plant model's tracking) and the true deviation
+(the generator's own kinematics with and without its joint offsets), in mrad. The shared effects:
+what plant/shared.json changed, against the camera and sun the generator used.
+
+Run: python tests/plant_truth.py RESULTS_DIR PAINT_DIR [--plant plant] [--model drt] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from paint_world import Scene, World, sun_vector  # noqa: E402
+
+from helioflow.data.hdf5 import read_dataset  # noqa: E402
+from helioflow.models.registry import load_model  # noqa: E402
+from helioflow.physics.geometry import sun_vector as helioflow_sun  # noqa: E402
+from helioflow.physics.heliostat import orientation  # noqa: E402
+
+EFFECT_OF = {"tracking": "tracking", "canting": "canting", "bump": "surface", "slope": "slope_error"}
+
+
+def true_deviation(truth: dict, azimuth_deg, elevation_deg) -> np.ndarray:
+    """(S, 3) true mirror normal minus the ideal one (ENU) of one heliostat, by the generator."""
+    scene = Scene(World().target)
+    scene.position = scene.position + np.asarray(truth["offset_enu_m"], float)
+    out = []
+    for az, el in zip(azimuth_deg, elevation_deg):
+        sun = sun_vector(float(az), float(el))
+        out.append(scene.mirror_rotation(sun, tuple(truth["tracking_mrad"]))[:, 2]
+                   - scene.mirror_rotation(sun, (0.0, 0.0))[:, 2])
+    return np.asarray(out)
+
+
+def fitted_deviation(model, azimuth_deg, elevation_deg, aim_m) -> np.ndarray:
+    """(S, 3) the fitted kinematics' mirror normal minus the ideal one (ENU), by helioflow."""
+    h = model.heliostat.to("cpu", torch.float64)
+    sun = helioflow_sun(torch.deg2rad(torch.as_tensor(azimuth_deg, dtype=torch.float64)),
+                        torch.deg2rad(torch.as_tensor(elevation_deg, dtype=torch.float64)))
+    aim = torch.as_tensor(aim_m, dtype=torch.float64)
+    tracking = model.fitted.tensors["tracking"].detach().cpu().double().reshape(5)
+    fitted = orientation(replace(h, tracking_error=tracking * 1e-3), sun, aim)[..., 2]
+    ideal = orientation(replace(h, tracking_error=torch.zeros(5, dtype=torch.float64)), sun, aim)[..., 2]
+    return (fitted - ideal).numpy()
+
+
+def score(results: Path, paint_dir: Path, plant: str, model_name: str) -> dict:
+    truth = json.loads((paint_dir / "truth.json").read_text())
+    rows = []
+    for name, t in truth.items():
+        dataset = f"{plant}_{name}"
+        ds = read_dataset(results / "datasets" / f"{dataset}.h5")
+        model, _ = load_model(results / "models" / dataset / f"{model_name}.pt")
+        diagnosis = json.loads((results / "diagnosis" / f"{dataset}.json").read_text())
+        named = sorted({c.split(":")[0] for c in diagnosis["remaining"]["changes"]})
+        hidden = sorted(EFFECT_OF[h] for h in t["hidden"])
+        d_true = true_deviation(t, ds.azimuth_deg, ds.elevation_deg)
+        d_fit = fitted_deviation(model, ds.azimuth_deg, ds.elevation_deg, ds.attrs["target_center_m"])
+        rows.append({"heliostat": name, "hidden": hidden, "named": named, "right": named == hidden,
+                     "true_pointing_mrad": round(float(np.sqrt((np.linalg.norm(d_true, axis=1) ** 2).mean()) * 1e3), 3),
+                     "pointing_recovered_mrad": round(float(np.sqrt((np.linalg.norm(d_fit - d_true, axis=1) ** 2)
+                                                                    .mean()) * 1e3), 3)})
+    shared_path = results / "plant" / "shared.json"
+    shared = json.loads(shared_path.read_text())[plant] if shared_path.exists() else None
+    return {"heliostats": rows,
+            "named_right": sum(r["right"] for r in rows) / len(rows),
+            "pointing_recovered_rms_mrad": round(float(np.sqrt(np.mean([r["pointing_recovered_mrad"] ** 2
+                                                                          for r in rows]))), 3),
+            "shared_changes": None if shared is None else shared["changes"],
+            "shared_values": None if shared is None else {n: v for s in shared["shared"] for n, v in s["values"].items()}}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("results")
+    ap.add_argument("paint_dir")
+    ap.add_argument("--plant", default="plant")
+    ap.add_argument("--model", default="drt")
+    ap.add_argument("--json")
+    args = ap.parse_args()
+    out = score(Path(args.results), Path(args.paint_dir), args.plant, args.model)
+    print("| heliostat | hidden | named | right | true pointing (mrad) | fitted - true (mrad RMS) |")
+    print("|---|---|---|---|---|---|")
+    for r in out["heliostats"]:
+        print(f"| {r['heliostat']} | {', '.join(r['hidden'])} | {', '.join(r['named']) or 'none'} | "
+              f"{'yes' if r['right'] else 'no'} | {r['true_pointing_mrad']} | {r['pointing_recovered_mrad']} |")
+    print(f"named right: {out['named_right']:.0%}; pointing recovered to {out['pointing_recovered_rms_mrad']} mrad RMS; "
+          f"shared changes: {out['shared_changes']} {out['shared_values'] or ''}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
