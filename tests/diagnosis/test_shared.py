@@ -2,8 +2,8 @@
 at their own pivots, made by the independent Monte Carlo of tests/paint_world.py (8-bit PNGs),
 under one Gaussian sun the model is told and one camera it is not (background 3 % of the peak,
 blur 1.5 px), each heliostat hiding its own tracking error and on most a canting error, a surface
-bump or a slope error. The camera is what they share: the plant fit names it, and finds its blur;
-the sun it leaves as configured; each heliostat alone makes less certain of the blur than the plant.
+bump or a slope error. The camera is what they share: the plant fit names it and finds its blur
+within its sigma; the sun it leaves as configured; every heliostat takes the plant's values.
 """
 
 import json
@@ -49,8 +49,7 @@ def test_the_plant_fit_names_the_shared_camera_and_finds_its_blur(plant):
     assert abs(blur["value"] - TRUE_BLUR_PX) <= max(3 * blur["sigma"], 0.25), blur
     sun = next(s for s in shared["shared"] if s["effect"] == "sunshape")
     assert not sun["changed"] and sun["params"] == BELIEVED["sunshape"]  # the told sun is kept
-    alone = [a["sigma"] for a in blur["alone"].values()]
-    assert blur["sigma"] < min(alone)  # the plant pins the blur down better than any heliostat alone
+    assert blur["sigma"] <= 0.3 and len(blur["alone"]) == N  # every heliostat's own answer beside the plant's
     assert shared["effects"]["camera"]["gain"] == "fit"  # exposure stays each heliostat's own
 
 

@@ -7,26 +7,31 @@ a slope error, a canting or a tracking error is each heliostat's own. The plant 
 
 1. It takes up to `heliostats` of a plant's heliostats, evenly across the plant's list (a plant of
    thousands shares one sun and one camera: a few dozen heliostats determine them as well as all).
-2. Each heliostat keeps its own rigid effects free (`OWN`: tracking, canting, slope error; the
-   surface is left to its own fit and diagnosis), fitted on its training images with the
-   diagnosis' shape loss.
+2. Each heliostat keeps its own rigid effects free (`OWN`: tracking and canting), fitted on its
+   training images with the diagnosis' shape loss. Not its slope error: on one target a slope error
+   and a camera blur (or a wider sun) widen the spot alike, and a slope error free on every
+   heliostat could take up any share of a shared widening. Widening common to the heliostats is
+   the shared effects'; what one heliostat has beyond it is its own, for its own diagnosis.
 3. Every change to a shared effect the diagnosis would try (the camera added, the sun's width
-   freed, the sun switched to another profile: diagnosis/candidates.py) is fitted jointly: first
-   each heliostat alone (its own effects and the change's values), then the change's spread values
-   (the camera's blur, the sun's width) set to the minimum of the loss summed over the heliostats
-   (SciPy's bounded Powell search, each heliostat's own values held), and each heliostat refitted
-   with them fixed, ALTERNATIONS times. The camera's gain and background stay each heliostat's own
-   (per image in closed form: exposure and daylight change from image to image).
+   freed, the sun switched to another profile: diagnosis/candidates.py) is fitted on each
+   heliostat alone (its own effects and the change's values); the shared value of each of the
+   change's widths (the camera's blur, the sun's width) is the median of the heliostats' own
+   values (robust to the few heliostats that widen their spot by themselves: a slope error, a
+   bump), and every heliostat is refitted with it fixed. The camera's gain and background stay
+   each heliostat's own (in closed form: exposure and daylight change from image to image).
 4. A change is shared when it cuts the plant's held-out error (the mean over the heliostats of the
    misplaced flux fraction on their held-out images) meaningfully (diagnose.is_meaningful); the
    best one, then the best with one more change of another shared effect, as long as each step
    counts.
-5. Each shared value carries its sigma: the heliostats' own fits are independent given the shared
-   values, so their information adds: 1 / sigma^2 = sum over heliostats of 1 / sigma_h^2, sigma_h
-   the value's marginal sigma in heliostat h's fit with the value freed at the joint optimum
-   (models/uncertainty.py). Beside it, what each heliostat alone makes of the value (its own fit
-   with the value free: the confounded answer one heliostat gets) and the chi^2 per degree of
-   freedom of those against the shared value.
+5. Each shared value carries its sigma. Information: the heliostats' own fits are independent
+   given the shared values, so their information adds, 1 / s^2 = sum over heliostats of
+   1 / sigma_h^2, sigma_h the value's marginal sigma in heliostat h's fit with the value freed at
+   the shared values (models/uncertainty.py), times sqrt(pi / 2) for a median. Scatter: the
+   heliostats' own values about their median (1.4826 MAD, times sqrt(pi / 2) / sqrt(n)). The larger
+   of the two is reported: where the heliostats disagree beyond their sigma_h (a chi^2 per degree
+   of freedom of their own values against the shared one far above 1), the scatter says how well
+   the plant knows the value. Beside it, what each heliostat alone makes of it (its own fit with
+   the value free: the confounded answer one heliostat gets).
 
 Every heliostat's physics model and diagnosis then take the shared effects at these values
 (`shared_effects`) and try no change to a shared effect themselves (workflow: plant.shared).
@@ -42,7 +47,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.optimize import minimize
 
 from helioflow.data.hdf5 import read_dataset
 from helioflow.data.surfaces import read_heliostat
@@ -53,25 +57,20 @@ from helioflow.errors import DataError
 from helioflow.io import write_text_atomic
 from helioflow.models.physical import drt_effects
 from helioflow.models.physics_fit import (
-    OFFSETS,
-    SCALES,
-    SEARCH_CEILING,
-    SEARCH_FLOOR,
     FitResult,
     FitSettings,
     Measurements,
     fit_effects,
-    fit_loss,
     with_uncertainty,
 )
-from helioflow.physics.effects import FIT, REGISTRY, fitted_parameters
+from helioflow.physics.effects import REGISTRY, fitted_parameters
 from helioflow.physics.scene import Scene, dataset_scene
 from helioflow.scoring.metrics import misplaced_flux
 
 log = logging.getLogger(__name__)
 
-OWN = "tracking, canting and slope error"  # each heliostat's own effects during the plant fit (drt without surface)
-ALTERNATIONS = 2  # shared values searched, then every heliostat refitted with them, this many times
+MEDIAN_EFFICIENCY = math.sqrt(math.pi / 2.0)  # sigma of a median over that of a mean (normal errors)
+OWN = "tracking"  # each heliostat's own effects during the plant fit (drt_effects, kinematics only)
 
 
 def is_shared(effect: str) -> bool:
@@ -122,7 +121,7 @@ class PlantFit:
         for label in labels:
             c = self.candidate[label]
             out[c.effect] = dict(c.params)
-        return drt_effects(out, self.members[0].scene.heliostat.n_facets, surface=False)
+        return drt_effects(out, self.members[0].scene.heliostat.n_facets, kinematics_only=True)
 
     def shared_spreads(self, effects: dict) -> list[tuple[str, str]]:
         """The fitted spread scalars of shared effects in an effect list: what the heliostats share."""
@@ -141,10 +140,8 @@ class PlantFit:
             starts = min((self.joint(key - {label}) for label in key), key=lambda j: j.error).fits
         fits = [fit_effects(m.scene, effects, m.train, self.settings, start=s) for m, s in zip(self.members, starts)]
         self.alone[key] = fits
-        spreads = self.shared_spreads(effects)
-        shared: dict[str, float] = {}
-        for _ in range(ALTERNATIONS if spreads else 0):
-            shared = self.common(effects, fits, spreads)
+        shared = self.common(fits, self.shared_spreads(effects))
+        if shared:
             fixed = with_values(effects, shared)
             fits = [fit_effects(m.scene, fixed, m.train, self.settings, start=f) for m, f in zip(self.members, fits)]
         errors = []
@@ -158,26 +155,11 @@ class PlantFit:
                  shared)
         return self.joints[key]
 
-    def common(self, effects: dict, fits: list[FitResult], spreads: list[tuple[str, str]]) -> dict[str, float]:
-        """The shared spread values that minimise the loss summed over the heliostats, each
-        heliostat's own values held at `fits` (SciPy's bounded Powell search on a log scale)."""
-        names = [f"{e}.{k}" for e, k in spreads]
-        bounds = []
-        for e, k in spreads:
-            p = REGISTRY[e].parameter(k)
-            bounds.append((math.log(max(p.lower or SEARCH_FLOOR, SEARCH_FLOOR)),
-                           math.log(min(p.upper or SEARCH_CEILING, SEARCH_CEILING))))
-        start = [float(np.clip(np.median([math.log(max(f.effects[e][k], SEARCH_FLOOR)) for f in fits]), *b))
-                 for (e, k), b in zip(spreads, bounds)]
-        linear = [p for p in fitted_parameters(effects) if p in SCALES or p in OFFSETS]
-
-        def cost(x: np.ndarray) -> float:
-            values = dict(zip(names, np.exp(x).tolist()))
-            return sum(fit_loss(m.scene, with_values(refit_linear(f.effects, linear), values), f.tensors, m.train,
-                                "shape") for m, f in zip(self.members, fits))
-
-        found = minimize(cost, np.asarray(start), method="Powell", bounds=bounds, options={"xtol": 1e-3, "ftol": 1e-9})
-        return {n: round(float(v), 4) for n, v in zip(names, np.exp(found.x))}
+    @staticmethod
+    def common(fits: list[FitResult], spreads: list[tuple[str, str]]) -> dict[str, float]:
+        """The shared spread values: the median over the heliostats of what each alone fitted
+        (module docstring, step 3)."""
+        return {f"{e}.{k}": round(float(np.median([f.effects[e][k] for f in fits])), 4) for e, k in spreads}
 
     def select(self, max_changes: int) -> list[str]:
         """The shared changes the plant needs: the best that counts alone, then the best with one
@@ -207,7 +189,9 @@ class PlantFit:
                         for m, f in zip(self.members, joint.fits)]
             alone = [(float(f.effects[e][k]), self._sigma(m, f, name)) for m, f in zip(self.members, self.alone[key])]
             information = sum(1.0 / s ** 2 for s in at_joint if s > 0)
-            sigma = information ** -0.5 if information > 0 else float("inf")
+            values = np.array([v for v, _ in alone])
+            scatter = 1.4826 * np.median(np.abs(values - np.median(values))) / math.sqrt(len(values))
+            sigma = MEDIAN_EFFICIENCY * max(information ** -0.5 if information > 0 else math.inf, scatter)
             chi2 = [((v - joint.shared[name]) / s) ** 2 for v, s in alone if s > 0]
             out[name] = {"value": joint.shared[name], "sigma": round(sigma, 5),
                          "alone": {m.heliostat: {"value": round(v, 4), "sigma": round(s, 5)}
@@ -227,14 +211,6 @@ def with_values(effects: dict, values: dict[str, float]) -> dict:
     for name, value in values.items():
         e, k = name.split(".")
         out[e][k] = value
-    return out
-
-
-def refit_linear(effects: dict, linear: list[tuple[str, str]]) -> dict:
-    """A fitted effect list with its linear scalars marked "fit" again (fitted in closed form anew)."""
-    out = {e: dict(p) for e, p in effects.items()}
-    for e, k in linear:
-        out[e][k] = FIT
     return out
 
 
@@ -325,7 +301,7 @@ def plant_verdict(n: int, before: float, after: float, chosen: list[str], kept: 
     rest = sorted(set(kept) - {c.split(":")[0] for c in chosen})
     if chosen and rest:
         words.append(f"Kept as configured: {', '.join(rest)}.")
-    words.append(f"Each heliostat's own effects ({OWN}, its surface) are left to its own fit and diagnosis, "
+    words.append(f"Each heliostat's own effects ({OWN}, canting, slope error, surface) are left to its own fit and diagnosis, "
                  "which take the shared effects at these values.")
     return " ".join(words)
 

@@ -107,16 +107,17 @@ class PhysicsConfig:
                               "gauss_newton_steps": (1000, "each step builds a Jacobian by finite differences")})
 
 
-def drt_effects(effects: dict, n_facets: int, surface: bool = True) -> dict:
+def drt_effects(effects: dict, n_facets: int, kinematics_only: bool = False) -> dict:
     """The drt effect list: the model's effects plus tracking (all parameters), surface, slope
     error and (for more than one facet) canting marked "fit" where the model does not set them;
-    `surface` False: without the surface (the rigid heliostat the plant fit uses, diagnosis/shared.py)."""
+    `kinematics_only`: tracking alone (what the plant fit frees per heliostat, diagnosis/shared.py)."""
     out = {e: dict(p or {}) for e, p in effects.items()}
     tracking = out.setdefault("tracking", {})
     for p in REGISTRY["tracking"].parameters:
         tracking.setdefault(p.name, FIT)
-    if surface:
-        out.setdefault("surface", {}).setdefault("control_heights_mm", FIT)
+    if kinematics_only:
+        return out
+    out.setdefault("surface", {}).setdefault("control_heights_mm", FIT)
     out.setdefault("slope_error", {}).setdefault("sigma_mrad", FIT)
     if n_facets > 1:
         out.setdefault("canting", {}).setdefault("facet_tilts_mrad", FIT)

@@ -266,14 +266,6 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
     return FitResult(effects, effective_tensors({k: v.detach() for k, v in tensors.items()}), history, pairs)
 
 
-def fit_loss(scene: Scene, effects: dict, tensors: dict, data: Measurements, loss: str) -> float:
-    """The loss a fit minimises (`loss`: "absolute" or "shape") of `effects` with `tensors` against
-    `data`, its linear scalars marked "fit" at their least-squares values."""
-    linear = [p for p in fitted_parameters(effects) if p in SCALES or p in OFFSETS]
-    target = normalised(data.images, loss, 1.0)
-    return _Fitter(scene, data, target, FitSettings(loss=loss), linear).loss(effects, tensors)
-
-
 def with_uncertainty(scene: Scene, result: FitResult, data: Measurements, loss: str) -> FitResult:
     """`result` (fitted to `data` with `loss`) with the covariance of its fitted parameters
     (models/uncertainty.py) on `scene`'s trace (the one the model predicts with)."""
