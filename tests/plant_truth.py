@@ -5,10 +5,12 @@ Per heliostat: the effects its diagnosis named against those hidden (a tracking 
 canting, bump = registry `surface` or slope = `slope_error` on most), and the pointing recovered:
 the RMS over the dataset's sun positions of the difference between the fitted kinematics' deviation
 of the mirror normal from its ideal (helioflow's, the plant model's tracking) and the true deviation
-(the generator's own kinematics with and without its joint offsets), in mrad. The shared effects:
+(the generator's own kinematics with and without its joint offsets, of the mean facet normal with
+and without its canting errors: a mean facet tilt points the spot as the kinematics do), in mrad.
+The worlds are drawn again from the generator's seed (`--seed`, the demo's by default). The shared effects:
 what plant/shared.json changed, against the camera and sun the generator used.
 
-Run: python tests/plant_truth.py RESULTS_DIR PAINT_DIR [--plant plant] [--model drt] [--json out.json]
+Run: python tests/plant_truth.py RESULTS_DIR PAINT_DIR [--plant plant] [--model drt] [--seed 11] [--json out.json]
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from paint_world import Scene, World, sun_vector  # noqa: E402
+from paint_world import PLANT_DEMO, Scene, World, plant_worlds, rotation, sun_vector  # noqa: E402
 
 from helioflow.data.hdf5 import read_dataset  # noqa: E402
 from helioflow.models.registry import load_model  # noqa: E402
@@ -33,15 +35,29 @@ from helioflow.physics.heliostat import orientation  # noqa: E402
 EFFECT_OF = {"tracking": "tracking", "canting": "canting", "bump": "surface", "slope": "slope_error"}
 
 
-def true_deviation(truth: dict, azimuth_deg, elevation_deg) -> np.ndarray:
-    """(S, 3) true mirror normal minus the ideal one (ENU) of one heliostat, by the generator."""
-    scene = Scene(World().target)
-    scene.position = scene.position + np.asarray(truth["offset_enu_m"], float)
+def mean_normal(scene: Scene, canting_mrad: np.ndarray | None) -> np.ndarray:
+    """(3,) unit mean facet normal in the heliostat frame, the facets tilted as the generator tilts them."""
+    normals = scene.normal.copy()
+    if canting_mrad is not None:
+        e_axis = scene.half_e / np.linalg.norm(scene.half_e, axis=-1, keepdims=True)
+        n_axis = scene.half_n / np.linalg.norm(scene.half_n, axis=-1, keepdims=True)
+        for f in range(len(normals)):
+            normals[f] = (rotation(e_axis[f], canting_mrad[f, 0] * 1e-3) @ rotation(n_axis[f], canting_mrad[f, 1] * 1e-3)
+                          @ normals[f])
+    mean = normals.mean(0)
+    return mean / np.linalg.norm(mean)
+
+
+def true_deviation(offset_enu_m, world: World, azimuth_deg, elevation_deg) -> np.ndarray:
+    """(S, 3) true mean mirror normal minus the ideal one (ENU) of one heliostat, by the generator."""
+    scene = Scene(world.target)
+    scene.position = scene.position + np.asarray(offset_enu_m, float)
+    true_normal, design = mean_normal(scene, world.canting_mrad), mean_normal(scene, None)
     out = []
     for az, el in zip(azimuth_deg, elevation_deg):
         sun = sun_vector(float(az), float(el))
-        out.append(scene.mirror_rotation(sun, tuple(truth["tracking_mrad"]))[:, 2]
-                   - scene.mirror_rotation(sun, (0.0, 0.0))[:, 2])
+        out.append(scene.mirror_rotation(sun, world.tracking_mrad) @ true_normal
+                   - scene.mirror_rotation(sun, (0.0, 0.0)) @ design)
     return np.asarray(out)
 
 
@@ -57,8 +73,11 @@ def fitted_deviation(model, azimuth_deg, elevation_deg, aim_m) -> np.ndarray:
     return (fitted - ideal).numpy()
 
 
-def score(results: Path, paint_dir: Path, plant: str, model_name: str) -> dict:
+def score(results: Path, paint_dir: Path, plant: str, model_name: str, seed: int) -> dict:
     truth = json.loads((paint_dir / "truth.json").read_text())
+    worlds = plant_worlds(len(truth), seed)
+    if any(worlds[n][1].truth["hidden"] != t["hidden"] for n, t in truth.items()):
+        raise SystemExit(f"{paint_dir}/truth.json was not drawn with seed {seed}: give the plant's --seed")
     rows = []
     for name, t in truth.items():
         dataset = f"{plant}_{name}"
@@ -67,7 +86,7 @@ def score(results: Path, paint_dir: Path, plant: str, model_name: str) -> dict:
         diagnosis = json.loads((results / "diagnosis" / f"{dataset}.json").read_text())
         named = sorted({c.split(":")[0] for c in diagnosis["remaining"]["changes"]})
         hidden = sorted(EFFECT_OF[h] for h in t["hidden"])
-        d_true = true_deviation(t, ds.azimuth_deg, ds.elevation_deg)
+        d_true = true_deviation(t["offset_enu_m"], worlds[name][1], ds.azimuth_deg, ds.elevation_deg)
         d_fit = fitted_deviation(model, ds.azimuth_deg, ds.elevation_deg, ds.attrs["target_center_m"])
         rows.append({"heliostat": name, "hidden": hidden, "named": named, "right": named == hidden,
                      "true_pointing_mrad": round(float(np.sqrt((np.linalg.norm(d_true, axis=1) ** 2).mean()) * 1e3), 3),
@@ -89,9 +108,10 @@ def main() -> None:
     ap.add_argument("paint_dir")
     ap.add_argument("--plant", default="plant")
     ap.add_argument("--model", default="drt")
+    ap.add_argument("--seed", type=int, default=PLANT_DEMO["seed"], help="the seed plant_worlds drew the plant with")
     ap.add_argument("--json")
     args = ap.parse_args()
-    out = score(Path(args.results), Path(args.paint_dir), args.plant, args.model)
+    out = score(Path(args.results), Path(args.paint_dir), args.plant, args.model, args.seed)
     print("| heliostat | hidden | named | right | true pointing (mrad) | fitted - true (mrad RMS) |")
     print("|---|---|---|---|---|---|")
     for r in out["heliostats"]:
