@@ -860,11 +860,11 @@ SHARED_DEFAULTS = {"heliostats": 8, "fit_images": 12, "heldout_images": 16, "fit
 
 def plant_shared_settings(config: dict) -> dict | None:
     """The plant fit's settings (config plant.shared over SHARED_DEFAULTS), None when the config has
-    no plant entry or sets `plant.shared: null` (each heliostat fitted alone)."""
-    plant = config.get("plant") or {}
-    if not plant_groups(config) or ("shared" in plant and plant["shared"] is None):
+    no plant entry or sets `plant.shared: false` (each heliostat fitted alone)."""
+    shared = (config.get("plant") or {}).get("shared", {})
+    if not plant_groups(config) or shared is False:
         return None
-    return {**SHARED_DEFAULTS, **copy.deepcopy(plant.get("shared") or {})}
+    return {**SHARED_DEFAULTS, **(copy.deepcopy(shared) if isinstance(shared, dict) else {})}
 
 
 def plant_shared_path(config: dict) -> list[str]:

@@ -115,6 +115,6 @@ def test_every_heliostat_of_a_plant_takes_the_plant_fits_shared_effects():
     assert train_inputs(config, "jul_AA39", "drt")["shared"] == [path]
     assert train_params(config, "jul_AA39", "gan")["shared"] is None  # a network learns the images as they are
     assert diagnose_params(config, "sky")["shared"] is None and shared_inputs(config, "sky") == []
-    config["plant"] = {"shared": None}  # each heliostat alone: no plant fit
+    config["plant"] = {"shared": False}  # each heliostat alone: no plant fit
     assert shared_inputs(config, "jul_AA39") == [] and plant_shared_spec(config)["plants"] == {}
     assert diagnose_params(config, "jul_AA39")["shared"] is None
