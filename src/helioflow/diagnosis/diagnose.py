@@ -192,10 +192,7 @@ class Diagnosis:
             kept = self._embedded(base, key, added)
             if kept is not None and result.history[-1] > base.history[-1] * (1.0 + ROUNDING):
                 result = kept
-        with torch.no_grad():
-            pred, lost = self.scene.simulate(result.effects, result.tensors, self.heldout.azimuth_deg,
-                                             self.heldout.elevation_deg, with_lost=True)
-        self.fits[key] = (float(misplaced_flux(pred, self.heldout.images, lost).mean()), result)
+        self.fits[key] = (heldout_error(self.scene, result, self.heldout), result)
         log.info("model + %s: held-out error %.4f", " + ".join(sorted(key)) or "nothing", self.fits[key][0])
         return self.fits[key]
 
@@ -417,6 +414,14 @@ class Diagnosis:
                 "relative_reduction": 1.0 - after / max(before, 1e-30),
                 "identifiable": REGISTRY[c.effect].identifiable, "meaningful": meaningful,
                 "config": config_line(c, fit)}
+
+
+def heldout_error(scene: Scene, result: FitResult, heldout: Measurements) -> float:
+    """The mean misplaced flux fraction of a fit's prediction against held-out measurements."""
+    with torch.no_grad():
+        pred, lost = scene.simulate(result.effects, result.tensors, heldout.azimuth_deg, heldout.elevation_deg,
+                                    with_lost=True)
+    return float(misplaced_flux(pred, heldout.images, lost).mean())
 
 
 def is_meaningful(before: float, after: float) -> bool:

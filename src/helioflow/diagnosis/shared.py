@@ -46,13 +46,12 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from helioflow.data.hdf5 import read_dataset
 from helioflow.data.surfaces import read_heliostat
 from helioflow.device import resolve_device
 from helioflow.diagnosis.candidates import Candidate, candidates
-from helioflow.diagnosis.diagnose import _measurements, is_meaningful, scoring_split
+from helioflow.diagnosis.diagnose import _measurements, heldout_error, is_meaningful, scoring_split
 from helioflow.errors import DataError
 from helioflow.io import write_text_atomic
 from helioflow.models.physical import drt_effects
@@ -65,7 +64,6 @@ from helioflow.models.physics_fit import (
 )
 from helioflow.physics.effects import REGISTRY, fitted_parameters
 from helioflow.physics.scene import Scene, dataset_scene
-from helioflow.scoring.metrics import misplaced_flux
 
 log = logging.getLogger(__name__)
 
@@ -115,8 +113,8 @@ class PlantFit:
         self.alone: dict[frozenset, list[FitResult]] = {}
 
     def effects_with(self, labels) -> dict:
-        """The plant fit's effect list (the model's, each heliostat's own rigid effects "fit") with
-        the changes `labels` applied."""
+        """The plant fit's effect list (the model's, each heliostat's kinematics "fit") with the
+        changes `labels` applied."""
         out = {e: dict(p or {}) for e, p in self.effects.items()}
         for label in labels:
             c = self.candidate[label]
@@ -144,12 +142,7 @@ class PlantFit:
         if shared:
             fixed = with_values(effects, shared)
             fits = [fit_effects(m.scene, fixed, m.train, self.settings, start=f) for m, f in zip(self.members, fits)]
-        errors = []
-        for m, f in zip(self.members, fits):
-            with torch.no_grad():
-                pred, lost = m.scene.simulate(f.effects, f.tensors, m.heldout.azimuth_deg, m.heldout.elevation_deg,
-                                              with_lost=True)
-            errors.append(float(misplaced_flux(pred, m.heldout.images, lost).mean()))
+        errors = [heldout_error(m.scene, f, m.heldout) for m, f in zip(self.members, fits)]
         self.joints[key] = Joint(key, shared, fits, errors)
         log.info("plant + %s: held-out error %.4f %s", " + ".join(sorted(key)) or "nothing", self.joints[key].error,
                  shared)
