@@ -305,8 +305,9 @@ def train_params(config: dict, dataset: str, model: str) -> dict:
     settings = copy.deepcopy(networks[network] or {})
     if network in PHYSICS_MODELS:
         settings.update(effects=model_effects(config, dataset), heliostat_path=heliostat_path(config, dataset))
+    shared = shared_of(config, dataset) if network in PHYSICS_MODELS else None
     return {"network": network, "settings": settings, "seed": config["seed"], "train_images": count,
-            "device": config["device"], "shared": shared_of(config, dataset) if network in PHYSICS_MODELS else None}
+            "device": config["device"], **({"shared": shared} if shared else {})}
 
 
 def train_threads(config: dict, dataset: str, model: str) -> int:
@@ -328,7 +329,8 @@ def train_inputs(config: dict, dataset: str, model: str) -> dict:
     inputs = {"dataset": f"{results_dir(config)}/datasets/{dataset}.h5"}
     if parse_model(model)[0] in PHYSICS_MODELS:
         inputs["heliostat"] = heliostat_path(config, dataset)
-        inputs.update(shared=shared_inputs(config, dataset))
+        if shared_inputs(config, dataset):
+            inputs["shared"] = shared_inputs(config, dataset)
     return inputs
 
 
@@ -341,7 +343,7 @@ def diagnose_params(config: dict, dataset: str) -> dict:
     (config `diagnosis`, defaults DIAGNOSIS_DEFAULTS)."""
     return {"effects": model_effects(config, dataset),
             "settings": {**DIAGNOSIS_DEFAULTS, **copy.deepcopy(config.get("diagnosis") or {})},
-            "device": config["device"], "shared": shared_of(config, dataset)}
+            "device": config["device"], **({"shared": shared_of(config, dataset)} if shared_of(config, dataset) else {})}
 
 
 PLAN_DEFAULTS = {"images": 8, "criterion": "d_optimal", "days": 7.0, "every_minutes": 30.0, "min_elevation_deg": 10.0}
@@ -891,7 +893,8 @@ def plant_shared_inputs(config: dict) -> list[str]:
 
 def shared_of(config: dict, dataset: str) -> dict | None:
     """{"path": plant/shared.json, "plant": its entry} for a heliostat of a plant whose shared effects
-    the plant fit sets (rules train and diagnose take them from there), else None."""
+    the plant fit sets (rules train and diagnose take them from there: the key `shared` of their
+    specs, absent for every other dataset), else None."""
     plant = config["datasets"][dataset].get(PLANT_KEY)
     if plant is None or FOLD_KEY in config["datasets"][dataset] or not plant_shared_path(config):
         return None

@@ -113,8 +113,8 @@ def test_every_heliostat_of_a_plant_takes_the_plant_fits_shared_effects():
     assert diagnose_params(config, "jul_AA39")["shared"] == {"path": path, "plant": "jul"}
     assert train_params(config, "jul_AA39", "drt")["shared"] == {"path": path, "plant": "jul"}
     assert train_inputs(config, "jul_AA39", "drt")["shared"] == [path]
-    assert train_params(config, "jul_AA39", "gan")["shared"] is None  # a network learns the images as they are
-    assert diagnose_params(config, "sky")["shared"] is None and shared_inputs(config, "sky") == []
+    assert "shared" not in train_params(config, "jul_AA39", "gan")  # a network learns the images as they are
+    assert "shared" not in diagnose_params(config, "sky") and shared_inputs(config, "sky") == []
     config["plant"] = {"shared": False}  # each heliostat alone: no plant fit
     assert shared_inputs(config, "jul_AA39") == [] and plant_shared_spec(config)["plants"] == {}
-    assert diagnose_params(config, "jul_AA39")["shared"] is None
+    assert "shared" not in diagnose_params(config, "jul_AA39") and "shared" not in train_inputs(config, "jul_AA39", "drt")
