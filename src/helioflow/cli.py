@@ -157,8 +157,13 @@ def cmd_diagnose(args) -> None:
     stem = os.path.splitext(args.output)[0]
     figures = {name.removesuffix("-figure"): getattr(args, name.replace("-", "_")) or f"{stem}_{name}.png"
                for name in DIAGNOSIS_FIGURES}
+    shared = spec.get("shared")  # a plant's heliostat: the shared effects at the plant fit's values
+    if shared:
+        from helioflow.diagnosis.shared import with_plant
+
+        spec["effects"] = with_plant(spec["effects"], shared)
     diagnose_dataset(args.dataset, args.heliostat, spec["effects"], spec["settings"], args.output, figures,
-                     args.ledger or f"{stem}_ledger.json", spec.get("device", "cpu"), spec.get("shared"))
+                     args.ledger or f"{stem}_ledger.json", spec.get("device", "cpu"), (shared or {}).get("plant", ""))
 
 
 def cmd_evaluate(args) -> None:

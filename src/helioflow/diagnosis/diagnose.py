@@ -621,7 +621,7 @@ def _measurements(ds, index: np.ndarray, scale: float, device: str | torch.devic
 
 
 def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict, output_json, figures: dict,
-                     ledger_path, device: str = "cpu", shared: dict | None = None) -> dict:
+                     ledger_path, device: str = "cpu", plant: str = "") -> dict:
     """The `diagnose` rule: diagnosis/{dataset}.json and its figures (keys of `figures`:
     signatures, ranking, residuals, ledger).
 
@@ -629,13 +629,11 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
         effects: the model's effect list for this dataset.
         settings: fit_images, heldout_images, fit_steps, rounds, cells_per_side, fit_rays, max_effects.
         device: where the fits run (cpu | cuda | auto).
-        shared: a plant's heliostat: {"path": plant/shared.json, "plant": its entry}; the model takes
-            the plant's shared effects at their fitted values and no change to them is tried.
+        plant: a plant's heliostat: its plant entry, whose shared effects `effects` holds at the
+            plant fit's values (diagnosis.shared.with_plant); no change to them is tried.
     """
     from helioflow.diagnosis.figures import plot_diagnosis
-    from helioflow.diagnosis.shared import with_plant  # it builds on this module
 
-    effects = with_plant(effects, shared)
 
     ds = read_dataset(dataset_path)
     read_ledger(ledger_path)  # a broken ledger stops the rule before the fits, not after them
@@ -649,7 +647,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     fit = FitSettings(steps=settings["fit_steps"], rounds=settings["rounds"])
     diagnosis = Diagnosis(fit_scene, effects, _measurements(ds, pick(train_index, settings["fit_images"]), scale, device),
                           _measurements(ds, pick(heldout_index, settings["heldout_images"]), scale, device), fit,
-                          settings["max_effects"], plant=(shared or {}).get("plant", ""))
+                          settings["max_effects"], plant=plant)
     before, model, ranking, skipped, chosen = diagnosis.rank()
     remaining = diagnosis.remaining(chosen)
     final = with_uncertainty(fit_scene, diagnosis.fitted(chosen)[1], diagnosis.train, "shape")
@@ -682,7 +680,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     result = {
         "dataset": ds.attrs.get("dataset", Path(dataset_path).stem),
         "model_effects": effects,
-        "plant": None if shared is None else {"entry": shared["plant"], "shared_effects_from": shared["path"]},
+        "plant": plant or None,
         "model_hash": model_hash(effects),
         "error_measure": ERROR_MEASURE,
         "threshold": {"relative_reduction": THRESHOLD, "absolute_reduction": ABSOLUTE_FLOOR,
