@@ -1,7 +1,13 @@
 """Fixtures shared by the test folders."""
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import pytest
 import torch
+import yaml
 
 from helioflow.models.training import train
 from helioflow.physics.heliostat import Heliostat, ideal_heliostat
@@ -37,3 +43,29 @@ def make_heliostat(rows=2, cols=2, width=1.0, height=1.0, gap=0.02, focal=None, 
     """An ideal heliostat (physics.heliostat.ideal_heliostat) with the tests' defaults: 2 x 2 facets
     of 1 m, float64, at the origin."""
     return ideal_heliostat(rows, cols, width, height, gap, position, mount, canting, focal, n_control, dtype)
+
+
+SNAKEMAKE = Path(sys.executable).parent / "snakemake"
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def dry_run(tmp_path):
+    """`dry_run(config)`: `snakemake -n all` on `config` (a dict, written as config.yaml beside links to
+    the repository's Snakefile and workflow in tmp_path); asserts it succeeds and returns its output
+    (stdout and stderr). Skips the test where snakemake is not installed."""
+    if not SNAKEMAKE.exists():
+        pytest.skip("snakemake is not installed in this env")
+
+    def run(config: dict) -> str:
+        for name in ("Snakefile", "workflow"):
+            (tmp_path / name).symlink_to(REPO / name)
+        (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
+        env = {k: v for k, v in os.environ.items() if not k.startswith("SNAKEMAKE")}
+        env["PATH"] = f"{SNAKEMAKE.parent}{os.pathsep}{env.get('PATH', '')}"
+        proc = subprocess.run([str(SNAKEMAKE), "-n", "all"], cwd=tmp_path, env=env, capture_output=True, text=True,
+                              timeout=300, check=False)
+        assert proc.returncode == 0, proc.stderr
+        return proc.stdout + proc.stderr
+
+    return run
