@@ -329,8 +329,9 @@ def train_inputs(config: dict, dataset: str, model: str) -> dict:
     inputs = {"dataset": f"{results_dir(config)}/datasets/{dataset}.h5"}
     if parse_model(model)[0] in PHYSICS_MODELS:
         inputs["heliostat"] = heliostat_path(config, dataset)
-        if shared_inputs(config, dataset):
-            inputs["shared"] = shared_inputs(config, dataset)
+        shared = shared_inputs(config, dataset)
+        if shared:
+            inputs["shared"] = shared
     return inputs
 
 
@@ -341,9 +342,10 @@ DIAGNOSIS_DEFAULTS = {"fit_images": 24, "heldout_images": 48, "fit_steps": 80, "
 def diagnose_params(config: dict, dataset: str) -> dict:
     """Parameters of rule `diagnose`: the dataset's model effects and the fit settings
     (config `diagnosis`, defaults DIAGNOSIS_DEFAULTS)."""
+    shared = shared_of(config, dataset)
     return {"effects": model_effects(config, dataset),
             "settings": {**DIAGNOSIS_DEFAULTS, **copy.deepcopy(config.get("diagnosis") or {})},
-            "device": config["device"], **({"shared": shared_of(config, dataset)} if shared_of(config, dataset) else {})}
+            "device": config["device"], **({"shared": shared} if shared else {})}
 
 
 PLAN_DEFAULTS = {"images": 8, "criterion": "d_optimal", "days": 7.0, "every_minutes": 30.0, "min_elevation_deg": 10.0}

@@ -90,7 +90,6 @@ class Member:
 class Joint:
     """A joint fit of the plant: the shared values, each heliostat's fit, its held-out error."""
 
-    labels: frozenset
     shared: dict[str, float]  # "effect.parameter" -> value
     fits: list[FitResult]
     errors: list[float]
@@ -143,7 +142,7 @@ class PlantFit:
             fixed = with_values(effects, shared)
             fits = [fit_effects(m.scene, fixed, m.train, self.settings, start=f) for m, f in zip(self.members, fits)]
         errors = [heldout_error(m.scene, f, m.heldout) for m, f in zip(self.members, fits)]
-        self.joints[key] = Joint(key, shared, fits, errors)
+        self.joints[key] = Joint(shared, fits, errors)
         log.info("plant + %s: held-out error %.4f %s", " + ".join(sorted(key)) or "nothing", self.joints[key].error,
                  shared)
         return self.joints[key]
