@@ -238,7 +238,7 @@ def cmd_plant_table(args) -> None:
         spec = workflow.plant_table_spec(workflow.expand_config(load_config(args.config)))
     else:
         raise HelioflowError("give --spec JSON or @FILE, or --config FILE")
-    rows = write_plant_table(spec, args.csv)
+    rows = write_plant_table(spec, args.csv, args.plan)
     logging.info("wrote %s (%d heliostats)", args.csv, len(rows))
 
 
@@ -248,6 +248,18 @@ def cmd_plant_shared(args) -> None:
     out = plant_shared(read_spec(args.spec), args.output)
     for plant, entry in out.items():
         logging.info("%s: %s", plant, entry["verdict"])
+
+
+def cmd_plant_flux(args) -> None:
+    from helioflow.field.plant import compose_plant
+
+    spec = read_spec(args.spec)
+    if args.plant not in spec:
+        raise HelioflowError(f"--plant {args.plant}: no such plant entry in the spec; entries: "
+                             f"{', '.join(spec) or 'none'}")
+    summary = compose_plant(spec[args.plant], args.flux, args.figure, args.metrics)["summary"]
+    logging.info("%s: ideal against calibrated flux accuracy %.3f, mean spot shift %s m", args.plant,
+                 summary["ideal_against_calibrated"]["flux_accuracy"], summary["mean_spot_shift_m"])
 
 
 def cmd_report(args) -> None:
@@ -383,7 +395,18 @@ def parser() -> argparse.ArgumentParser:
                                   "specs/plant_table.json)")
     p.add_argument("--config", help="instead of --spec: the config file (its plant entries and `plant` section)")
     p.add_argument("--csv", required=True, help="plant/heliostats.csv")
+    p.add_argument("--plan", help="plant/plan.png: the plant's plan coloured by pointing error (optional)")
     p.set_defaults(func=cmd_plant_table)
+
+    p = sub.add_parser("plant-flux", help="a plant's flux maps on its receiver: calibrated heliostats as fitted, "
+                                          "the rest ideal")
+    p.add_argument("--spec", required=True, help="the rule's parameters as JSON, or @FILE (what the Snakefile "
+                                                 "passes: specs/plant_flux.json)")
+    p.add_argument("--plant", required=True, help="the plant entry (a key of the spec)")
+    p.add_argument("--flux", required=True, help="plant/flux/<plant>.h5")
+    p.add_argument("--figure", required=True, help="plant/flux/<plant>.png")
+    p.add_argument("--metrics", required=True, help="plant/flux/<plant>.json")
+    p.set_defaults(func=cmd_plant_flux)
 
     p = sub.add_parser("plant-shared", help="what a plant's heliostats share (the sun, the camera), fitted once "
                                             "across them")

@@ -205,6 +205,9 @@ def _check_references(config: dict, source: str) -> None:
                            f"heliostat {ds['heliostat']!r}", where)
     if config.get("field"):
         _check_field(config, f"{source}: field")
+    flux = (config.get("plant") or {}).get("flux")
+    if isinstance(flux, dict):
+        check_effects(flux.get("effects"), f"{source}: plant.flux.effects", allow_fit=False)
 
 
 def _check_traced(ds: dict, where: str) -> None:

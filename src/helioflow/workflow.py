@@ -424,6 +424,8 @@ def report_inputs(config: dict) -> dict[str, list[str]]:
         "leave_one_out": [p for g in leave_one_out_groups(config)
                           for p in (f"{r}/figures/leave_one_out/{g}.png", f"{r}/leave_one_out/{g}.csv")],
         "plant": plant_table_path(config),
+        "plant_plan": [str(Path(p).with_name("plan.png")) for p in plant_table_path(config)],
+        "plant_flux": [*plant_flux_paths(config, "png"), *plant_flux_paths(config, "json")],
         "plant_shared": plant_shared_path(config),
     }
 
@@ -642,7 +644,8 @@ def expand_field(config: dict) -> dict:
     return config
 
 
-SPEC_RULES = ("compose_field", "report", "table", "data_efficiency", "plant_table", "plant_shared")  # parameters that grow with the plant
+SPEC_RULES = ("compose_field", "report", "table", "data_efficiency", "plant_table", "plant_shared",
+              "plant_flux")  # parameters that grow with the plant
 
 
 def rule_spec(config: dict, rule: str) -> dict:
@@ -661,6 +664,8 @@ def rule_spec(config: dict, rule: str) -> dict:
         return plant_table_spec(config)
     if rule == "plant_shared":
         return plant_shared_spec(config)
+    if rule == "plant_flux":
+        return plant_flux_spec(config)
     raise ConfigError(f"no spec file for rule {rule!r}; rules with one: {', '.join(SPEC_RULES)}")
 
 
@@ -907,6 +912,61 @@ def shared_inputs(config: dict, dataset: str) -> list[str]:
     """[plant/shared.json] for a dataset shared_of gives one, else []."""
     shared = shared_of(config, dataset)
     return [] if shared is None else [shared["path"]]
+
+
+PLANT_FLUX_DEFAULTS = {
+    "receiver": "receiver", "resolution": [96, 96], "aim": {"kind": "center"}, "cells_per_side": 8,
+    "sun": {"noon": {"azimuth_deg": 0.0, "elevation_deg": 40.0},  # Jülich (50.9 N): the equinox noon sun
+            "morning": {"azimuth_deg": 60.0, "elevation_deg": 25.0},
+            "afternoon": {"azimuth_deg": -60.0, "elevation_deg": 25.0}},
+    "effects": {"blocking_shading": {}, "attenuation": {"model": "vittitoe_biggs_clear"}},
+}
+
+
+def plant_flux_settings(config: dict) -> dict | None:
+    """The plant flux maps' settings (config plant.flux over PLANT_FLUX_DEFAULTS; an aim without kind
+    aims at the centre), None when there is no plant table (plant_table_path) or `plant.flux: false`."""
+    flux = (config.get("plant") or {}).get("flux", {})
+    if not plant_table_path(config) or flux is False:
+        return None
+    settings = {**copy.deepcopy(PLANT_FLUX_DEFAULTS), **(copy.deepcopy(flux) if isinstance(flux, dict) else {})}
+    settings["aim"] = {"kind": "center", "spread": 0.5, "levels": 3, **settings["aim"]}
+    return settings
+
+
+def plant_flux_paths(config: dict, kind: str = "png") -> list[str]:
+    """plant/flux/<plant entry>.<kind> (kind h5, png or json) of every plant entry, when the maps are made."""
+    if plant_flux_settings(config) is None:
+        return []
+    return [f"{results_dir(config)}/plant/flux/{plant}.{kind}" for plant in plant_groups(config)]
+
+
+def plant_flux_spec(config: dict) -> dict:
+    """Parameters and inputs of rule `plant_flux` (field.plant.compose_plant), per plant entry: its PAINT
+    directory, model effects (those of its first heliostat's dataset: the entry's) and every
+    calibrated heliostat's physics model (plant.model, as the plant table)."""
+    settings = plant_flux_settings(config)
+    if settings is None:
+        return {}
+    model = plant_table_spec(config)["heliostats"]
+    return {plant: {"plant": plant, "paint_dir": config["datasets"][members[0]]["paint_dir"],
+                    "effects": model_effects(config, members[0]), "settings": settings, "device": config["device"],
+                    "dni_w_m2": config["dni_w_m2"],
+                    "calibrated": [{"heliostat": h["heliostat"], "model_path": h["model_path"]}
+                                   for h in model if h["plant"] == plant]}
+            for plant, members in plant_groups(config).items()}
+
+
+def plant_flux_inputs(config: dict, plant: str) -> list[str]:
+    """Files rule `plant_flux` reads for one plant entry: the tower file, every heliostat-properties.json
+    of its PAINT directory and its calibrated heliostats' physics models."""
+    spec = plant_flux_spec(config).get(plant)
+    if spec is None:
+        raise ConfigError(f"no plant flux map for {plant!r}; plant entries with one: "
+                          f"{', '.join(plant_flux_spec(config)) or 'none'}")
+    root = Path(spec["paint_dir"])
+    return [str(root / "tower-measurements.json"), *sorted(str(p) for p in root.glob("*/heliostat-properties.json")),
+            *[c["model_path"] for c in spec["calibrated"]]]
 
 
 def plant_table_inputs(config: dict) -> list[str]:

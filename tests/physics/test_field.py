@@ -145,7 +145,8 @@ def test_footprints_sampled_once_per_cell_where_smooth_give_the_supersampled_map
 
     field, receiver, physics, az, el = field_scene(1000)
     far = torch.arange(600, 1000, 3)  # every third of the outer rings, and a few nearer ones
-    field = FieldHeliostats(*[value[far] if isinstance(value, torch.Tensor) else tuple(value[i] for i in far)
+    field = FieldHeliostats(*[value[far] if isinstance(value, torch.Tensor) else
+                              None if value is None else tuple(value[i] for i in far)
                               for value in (getattr(field, f.name) for f in fields(field))])
     sampled = []
     footprint = field_module.footprint
@@ -395,6 +396,27 @@ def test_single_spots_are_the_shares_of_the_map():
     some = field_flux(field, receiver, az, el, physics.optics, spots=[15, 2], chunk=7)
     assert torch.equal(some.spots, every.spots[:, [15, 2]]) and torch.equal(some.flux, every.flux)
     assert field_flux(field, receiver, az, el, physics.optics).spots is None
+
+
+def test_each_heliostat_with_its_own_slope_error_gets_the_spot_of_that_slope_error():
+    """FieldHeliostats.slope_error: every heliostat's spot is the one the field traced with the optics'
+    slope error set to its own (same blocking, shading and budget), whatever chunk it shares."""
+    heliostats = _random_field(12, seed=4)
+    own = [(0.5e-3, 2.5e-3, 1.0e-3)[i % 3] for i in range(12)]
+    field = FieldHeliostats.stack(heliostats, 6, slope_error=own)
+    receiver = flat_receiver([0.0, 0.0, 10.0], [0.0, 1.0, -0.2], 4.0, 4.0, (40, 40))
+    physics = resolve({"sunshape": {"kind": "pillbox"}, "blocking_shading": {}}, ideal_heliostat(), dni=1000.0)
+    az, el = torch.tensor([0.3], dtype=DT), torch.tensor([0.6], dtype=DT)
+    mixed = field_flux(field, receiver, az, el, physics.optics, spots=range(12), chunk=5)
+    for value in set(own):
+        alike = field_flux(FieldHeliostats.stack(heliostats, 6), receiver, az, el,
+                           replace(physics.optics, slope_error=value), spots=range(12), chunk=5)
+        rows = [i for i, v in enumerate(own) if v == value]
+        assert torch.allclose(mixed.spots[:, rows], alike.spots[:, rows], rtol=1e-9, atol=1e-9)
+        for term in BUDGET_TERMS:
+            assert torch.allclose(mixed.budget[term][:, rows], alike.budget[term][:, rows], rtol=1e-9, atol=1e-9)
+    with pytest.raises(ValueError, match="2 slope errors for 12 heliostats"):
+        FieldHeliostats.stack(heliostats, 6, slope_error=[1e-3, 2e-3])
 
 
 def test_nothing_spills_from_a_receiver_that_holds_every_spot():

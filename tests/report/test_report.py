@@ -248,7 +248,7 @@ def test_report_inputs_of_the_tiny_config_list_the_expected_files():
         "dataset_figures": [f"{r}/figures/datasets/scan.png", f"{r}/figures/datasets/sky.png"],
         "paint_centroids": [], "table": [], "samples": [], "psnr": [], "data_efficiency": [], "recovery": [],
         "plan": [], "diagnosis": [], "diagnosis_figures": [], "field": [], "leave_one_out": [], "plant": [],
-        "plant_shared": [],
+        "plant_plan": [], "plant_flux": [], "plant_shared": [],
     }
     config = copy.deepcopy(config)
     config.update(networks={"nearest": {}}, diagnosis={}, field={})
@@ -293,3 +293,50 @@ def test_the_plant_section_shows_what_the_heliostats_share(tmp_path):
     path.write_text(json.dumps({"plant": {"shared": []}}))
     with pytest.raises(DataError, match="shared.json: not a plant fit"):
         build_report({"plant_shared": [str(path)]}, None, "t")
+
+
+def _plant_rows(n: int) -> list[dict]:
+    """n plant table rows (scoring.plant COLUMNS): heliostat k points k x 0.2 mrad off, names 9 kinds
+    of named effects, the last two flagged."""
+    kinds = ["tracking", "tracking;canting", "tracking;surface", "tracking;slope_error", "canting", "surface",
+             "slope_error", "tracking;canting;surface", ""]
+    return [{"plant": "plant", "heliostat": f"P{k:03d}", "dataset": f"plant_P{k:03d}", "east_m": 4.0 * k - 20,
+             "north_m": 30.0 + k % 3, "images": 16, "heldout_error_ideal": 0.2, "heldout_error_calibrated": 0.05,
+             "named_effects": kinds[k % len(kinds)], "pointing_error_mrad": round(0.2 * k, 3),
+             "pointing_error_sigma_mrad": 0.01, "canting_rms_mrad": "", "surface_rms_mm": "",
+             "flags": "pointing > 1 mrad" if k >= n - 2 else ""} for k in range(n)]
+
+
+def test_the_plant_section_shows_the_plan_the_worst_heliostats_and_the_plants_flux(tmp_path):
+    import csv
+
+    from helioflow.scoring.plant import COLUMNS
+    from helioflow.scoring.plant_figure import plot_plant_plan
+
+    rows = _plant_rows(12)
+    table = tmp_path / "heliostats.csv"
+    with open(table, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+    plan = tmp_path / "plan.png"
+    plot_plant_plan(plan, rows, 1.0)  # 9 combinations of named effects: 7 shapes, the rest one
+    flux = {"heliostats": 14, "calibrated": ["P000", "P001"], "design_points": {"noon": {
+        "calibrated": {"peak_flux_kw_m2": 120.5, "power_on_receiver_kw": 95.1, "intercept": 0.912},
+        "ideal": {"flux_accuracy": 0.871, "peak_flux_error": 0.052, "centroid_error_m": 0.031},
+        "heliostats": {"P000": {"shift_m": 0.41}, "P001": {"shift_m": 0.07}}}}}
+    (tmp_path / "plant.json").write_text(json.dumps(flux))
+    files = {"plant": [str(table)], "plant_plan": [str(plan)],
+             "plant_flux": [str(tmp_path / "plant.json"), str(plan)]}
+    text = _section(build_report(files, None, "t"), "The plant")
+    assert '<td>heliostats</td><td class="num">12</td>' in text and '<td>flagged</td><td class="num">2</td>' in text
+    worst = re.findall(r"<tr><td>(P\d+)</td>", text)
+    assert worst[:3] == ["P011", "P010", "P009"]  # by pointing error, largest first
+    assert text.count("data:image/png;base64,") == 2 and "coloured by its pointing error" in text
+    assert "Flux on the receiver of plant: 14 heliostats, 2 calibrated" in text
+    cells = re.sub(r' class="num"', "", text)
+    assert "<td>noon</td><td>120.50</td><td>95.1</td><td>0.912</td><td>0.871</td><td>+5.2 %</td>" in cells
+    assert cells.index("<td>P000</td><td>noon</td><td>0.410</td>") < cells.index("<td>P001</td><td>noon</td>")
+    (tmp_path / "plant.json").write_text(json.dumps({"heliostats": 3}))
+    with pytest.raises(DataError, match="plant.json: not a plant flux map"):
+        build_report(files, None, "t")

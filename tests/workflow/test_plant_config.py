@@ -134,3 +134,29 @@ def test_dry_run_fits_the_shared_effects_once_before_every_heliostats_fit_and_di
     assert all(shared in i for i in inputs["diagnose"] if "jul_" in i) and len(inputs["diagnose"]) == 4
     assert sum(shared in i for i in inputs["train"]) == 2  # the drt of each plant heliostat, not of scan / sky
     assert all(shared not in i for i in inputs["diagnose"] if "jul_" not in i)
+    (flux,) = inputs["plant_flux"]  # the plant's flux map after both heliostats' fits
+    assert "models/jul_AA31/drt.pt" in flux and "models/jul_AA39/drt.pt" in flux and "AA28/heliostat-properties" in flux
+
+
+def test_the_plant_flux_map_takes_every_heliostat_with_geometry_and_each_calibrated_ones_fit():
+    from helioflow.workflow import plant_flux_inputs, plant_flux_paths, plant_flux_spec, results_dir
+
+    config = expand_config(validate_config(_config({"heliostats": ["AA31", "AA39"]})))
+    config.update(networks={"drt": {}}, diagnosis={})
+    r = results_dir(config)
+    spec = plant_flux_spec(config)["jul"]
+    assert spec["calibrated"] == [{"heliostat": h, "model_path": f"{r}/models/jul_{h}/drt.pt"}
+                                  for h in ("AA31", "AA39")]
+    assert spec["settings"]["receiver"] == "receiver" and spec["settings"]["aim"]["kind"] == "center"
+    inputs = plant_flux_inputs(config, "jul")
+    assert inputs[0] == str(PAINT / "tower-measurements.json")
+    assert [Path(p).parent.name for p in inputs[1:5]] == ["AA28", "AA31", "AA39", "AC43"]  # AA28 raytraced ideal
+    assert plant_flux_paths(config, "json") == [f"{r}/plant/flux/jul.json"]
+    config["plant"] = {"flux": {"sun": {"dawn": {"azimuth_deg": 90.0, "elevation_deg": 5.0}},
+                                "aim": {"kind": "vertical"}}}
+    settings = plant_flux_spec(config)["jul"]["settings"]
+    assert list(settings["sun"]) == ["dawn"] and settings["aim"] == {"kind": "vertical", "spread": 0.5, "levels": 3}
+    config["plant"] = {"flux": False}
+    assert plant_flux_spec(config) == {} and plant_flux_paths(config) == []
+    with pytest.raises(ConfigError, match="no plant flux map for 'jul'"):
+        plant_flux_inputs(config, "jul")

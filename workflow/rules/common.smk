@@ -33,6 +33,8 @@ from helioflow.workflow import (
     paint_heliostat_inputs,
     paint_heliostat_params,
     paint_heliostats,
+    plant_flux_inputs,
+    plant_groups,
     plant_shared_inputs,
     plant_table_inputs,
     shared_inputs,

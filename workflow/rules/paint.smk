@@ -87,12 +87,14 @@ rule leave_one_out:
 rule plant_table:
     """One row per heliostat of the plant entries (datasets with `heliostats`): held-out errors, the
     diagnosis' named effects, the pointing error of the fitted kinematics with its sigma, canting,
-    surface and flags (helioflow.scoring.plant)."""
+    surface and flags (helioflow.scoring.plant), and the plant's plan coloured by pointing error
+    (helioflow.scoring.plant_figure)."""
     input:
         plant_table_inputs(config),
         spec=spec_path(config, "plant_table"),
     output:
-        f"{RESULTS}/plant/heliostats.csv",
+        csv=f"{RESULTS}/plant/heliostats.csv",
+        plan=f"{RESULTS}/plant/plan.png",
     params:
         torch_threads=TORCH_THREADS,
     log:
@@ -101,7 +103,8 @@ rule plant_table:
         f"{RESULTS}/benchmarks/plant_table/plant_table.tsv"
     threads: TORCH_THREADS
     shell:
-        "helioflow --threads {params.torch_threads:q} plant-table --spec @{input.spec:q} --csv {output:q} > {log:q} 2>&1"
+        "helioflow --threads {params.torch_threads:q} plant-table --spec @{input.spec:q} --csv {output.csv:q}"
+        " --plan {output.plan:q} > {log:q} 2>&1"
 
 
 rule plant_shared:
@@ -122,3 +125,27 @@ rule plant_shared:
     shell:
         "helioflow --threads {params.torch_threads:q} plant-shared --spec @{input.spec:q} --output {output:q}"
         " > {log:q} 2>&1"
+
+
+rule plant_flux:
+    """A plant entry's flux maps on its receiver: every heliostat of its PAINT directory, the calibrated
+    ones as their fits have them, the rest ideal (helioflow.field.plant)."""
+    input:
+        lambda wc: plant_flux_inputs(config, wc.plant),
+        spec=spec_path(config, "plant_flux"),
+    output:
+        flux=f"{RESULTS}/plant/flux/{{plant}}.h5",
+        figure=f"{RESULTS}/plant/flux/{{plant}}.png",
+        metrics=f"{RESULTS}/plant/flux/{{plant}}.json",
+    params:
+        torch_threads=TORCH_THREADS,
+    log:
+        f"{RESULTS}/logs/plant_flux/{{plant}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/plant_flux/{{plant}}.tsv"
+    wildcard_constraints:
+        plant=name_pattern(list(plant_groups(config))),
+    threads: TORCH_THREADS
+    shell:
+        "helioflow --threads {params.torch_threads:q} plant-flux --spec @{input.spec:q} --plant {wildcards.plant:q}"
+        " --flux {output.flux:q} --figure {output.figure:q} --metrics {output.metrics:q} > {log:q} 2>&1"

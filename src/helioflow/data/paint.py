@@ -192,6 +192,23 @@ class Tower:
         return replace(plane, aim=aim)
 
 
+    def receiver(self, name: str) -> PlaneTarget:
+        """The receiver entry `name` of the tower file as a flat plane through its outer corners
+        (``receiver_outer_<corner>``; a planar entry's own corners): the aperture of a cavity or of a
+        convex cylinder such as Jülich's (4.14 m radius, 60 deg opening: a chord of 4.14 m, within
+        ~0.5 m of its surface). DataError naming the file and the entry when it has no corners."""
+        entry = self.data.get(name)
+        if not isinstance(entry, dict):
+            known = sorted(k for k, v in self.data.items() if isinstance(v, dict) and "coordinates" in v)
+            raise DataError(f"{self.path}: no entry {name!r} to draw the flux map on; entries with coordinates: "
+                            f"{', '.join(known)}")
+        prefix = "" if entry.get("type") == "planar" else "receiver_outer_"
+        corners = {c: self.enu(field(self.data, self.path, f"{name}.coordinates.{prefix}{c}", "vec3"))
+                   for c in CORNERS}
+        normal_hint = np.asarray(field(self.data, self.path, f"{name}.normal_vector", "vec3"), dtype=float)
+        return plane_from_corners(name, corners, normal_hint)
+
+
 def plane_from_corners(name: str, corners: dict[str, np.ndarray], normal_hint: np.ndarray) -> PlaneTarget:
     """Target plane from its ENU corners (dict of CORNERS -> (3,) m); the normal's sign follows
     `normal_hint` (PAINT's ``normal_vector``, towards the field)."""

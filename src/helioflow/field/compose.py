@@ -147,13 +147,17 @@ def build_scene(spec: dict, device: torch.device) -> Scene:
 
 
 def trace_field(
-    scene: Scene, effects: dict, heliostats: list[Heliostat], dni: float, cells: int, device: torch.device
+    scene: Scene, effects: dict, heliostats: list[Heliostat], dni: float, cells: int, device: torch.device,
+    slope_error: dict[int, float] | None = None,
 ) -> tuple[FieldFlux, Optics]:
     """The field's flux maps and budgets (spots of the measured heliostats included) under one
-    effect list, and its optics."""
+    effect list, and its optics; `slope_error` {index: rad}: heliostats with their own slope error
+    (the others take the effect list's)."""
     physics = [resolve(effects, h, dni) for h in heliostats]
+    common = physics[0].optics.slope_error
+    own = [slope_error.get(i, common) for i in range(len(heliostats))] if slope_error else None
     field = FieldHeliostats.stack(
-        [p.heliostat.to(device, torch.float64) for p in physics], cells, torch.float64
+        [p.heliostat.to(device, torch.float64) for p in physics], cells, torch.float64, own
     )
     with torch.no_grad():
         flux = field_flux(
@@ -384,6 +388,7 @@ def compose_field(
     plot_field_maps(
         figure_path,
         maps,
+        "truth",
         scene.points,
         sun_deg,
         [metrics["design_points"][p] for p in scene.points],

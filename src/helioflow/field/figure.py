@@ -1,5 +1,7 @@
-"""The figure of rule `compose_field`: the field's plan, and per sun design point the truth, ideal and
-hybrid maps on one flux scale beside ideal - truth and hybrid - truth on one symmetric scale."""
+"""The figures of rules `compose_field` and `plant_flux`: the field's plan, and per sun design point
+its flux maps on one flux scale beside each map's difference to a reference map on one symmetric
+scale (compose_field: truth, ideal, hybrid against truth; plant_flux: ideal, calibrated against
+calibrated)."""
 
 from __future__ import annotations
 
@@ -9,12 +11,11 @@ import numpy as np
 
 from helioflow.plotting import plt, save_figure
 
-MAPS = ("truth", "ideal", "hybrid")
-
 
 def plot_field_maps(
     path: str | os.PathLike,
     maps: dict[str, np.ndarray],
+    reference: str,
     points: list[str],
     sun_deg: np.ndarray,
     scores: list[dict[str, dict]],
@@ -22,55 +23,52 @@ def plot_field_maps(
     measured: list[int],
     receiver_size_m: tuple[float, float],
     title: str,
+    labels: tuple[str, str] = ("raytraced (ideal)", "measured (model)"),
 ) -> None:
     """Write the field figure (PNG).
 
     Args:
-        maps: {"truth" | "ideal" | "hybrid": (S, H, W) flux (W/m^2)}.
+        maps: {name: (S, H, W) flux (W/m^2)}, drawn in this order; `reference` is one of them.
         points: S design point names; sun_deg: (S, 2) azimuth, elevation (deg).
-        scores: per design point {"ideal" | "hybrid": {"flux_accuracy", "peak_flux_error", ...}}.
-        positions: (N, 3) ENU pivots (m); measured: indices of the measured heliostats.
+        scores: per design point {name: {"flux_accuracy", "peak_flux_error", ...}} of every map but
+            the reference, against it (field.metrics.map_metrics).
+        positions: (N, 3) ENU pivots (m); measured: indices of the measured (calibrated) heliostats.
         receiver_size_m: (width, height) of the receiver (m), for the map axes.
+        labels: the plan's legend for the other heliostats and for the measured ones.
     """
-    n_points = len(points)
-    fig = plt.figure(figsize=(16.0, 2.7 * n_points + 0.9))
-    outer = fig.add_gridspec(1, 2, width_ratios=[1.5, 6.4], wspace=0.12)
-    _plan(fig.add_subplot(outer[0]), positions, measured)
-    # truth ideal hybrid | colour bar | gap | ideal - truth, hybrid - truth | colour bar
-    grid = outer[1].subgridspec(
-        n_points, 8, width_ratios=[1, 1, 1, 0.06, 0.12, 1, 1, 0.06], wspace=0.25, hspace=0.4
-    )
+    names = list(maps)
+    others = [m for m in names if m != reference]
+    n_points, n_maps, n_diffs = len(points), len(names), len(others)
+    fig = plt.figure(figsize=(2.1 * (n_maps + n_diffs) + 3.4, 2.7 * n_points + 0.9))
+    outer = fig.add_gridspec(1, 2, width_ratios=[1.5, 1.08 * (n_maps + n_diffs) + 0.3], wspace=0.12)
+    _plan(fig.add_subplot(outer[0]), positions, measured, labels)
+    # maps | colour bar | gap | differences | colour bar
+    ratios = [1] * n_maps + [0.06, 0.12] + [1] * n_diffs + [0.06]
+    grid = outer[1].subgridspec(n_points, len(ratios), width_ratios=ratios, wspace=0.25, hspace=0.4)
+    first_diff = n_maps + 2
     w, h = receiver_size_m
     extent = (-w / 2, w / 2, -h / 2, h / 2)
     for row, point in enumerate(points):
-        images = {m: maps[m][row] / 1e3 for m in MAPS}  # kW/m^2
-        diffs = {m: images[m] - images["truth"] for m in MAPS[1:]}
-        vmax = max(float(im.max()) for im in images.values())
+        images = {m: maps[m][row] / 1e3 for m in names}  # kW/m^2
+        diffs = {m: images[m] - images[reference] for m in others}
+        vmax = max(float(im.max()) for im in images.values()) or 1.0
         limit = max(float(np.abs(d).max()) for d in diffs.values()) or 1.0
-        panels = [
-            (col, m, images[m], {"cmap": "inferno", "vmin": 0, "vmax": vmax}) for col, m in enumerate(MAPS)
-        ]
-        panels += [
-            (col, m, diffs[m], {"cmap": "RdBu_r", "vmin": -limit, "vmax": limit})
-            for col, m in zip((5, 6), MAPS[1:])
-        ]
+        panels = [(col, m, images[m], {"cmap": "inferno", "vmin": 0, "vmax": vmax}) for col, m in enumerate(names)]
+        panels += [(first_diff + i, m, diffs[m], {"cmap": "RdBu_r", "vmin": -limit, "vmax": limit})
+                   for i, m in enumerate(others)]
         for col, name, image, style in panels:
             ax = fig.add_subplot(grid[row, col])
             shown = ax.imshow(image, extent=extent, **style)
             ax.tick_params(labelsize=6)
-            if col < 5:
+            if col < n_maps:
                 ax.set_title(name, fontsize=8)
             else:
                 s = scores[row][name]
-                ax.set_title(
-                    f"{name} − truth\nflux acc. {s['flux_accuracy']:.3f}, peak {s['peak_flux_error']:+.1%}",
-                    fontsize=8,
-                )
+                ax.set_title(f"{name} − {reference}\nflux acc. {s['flux_accuracy']:.3f}, "
+                             f"peak {s['peak_flux_error']:+.1%}", fontsize=8)
             if col == 0:
-                ax.set_ylabel(
-                    f"{point}: az {sun_deg[row, 0]:.0f}°, el {sun_deg[row, 1]:.0f}°\nup (m)", fontsize=8
-                )
-            if col in (2, 6):
+                ax.set_ylabel(f"{point}: az {sun_deg[row, 0]:.0f}°, el {sun_deg[row, 1]:.0f}°\nup (m)", fontsize=8)
+            if col in (n_maps - 1, len(ratios) - 2):
                 bar = fig.colorbar(shown, cax=fig.add_subplot(grid[row, col + 1]))
                 bar.ax.tick_params(labelsize=6)
                 bar.ax.set_title("kW/m²", fontsize=6)
@@ -78,16 +76,14 @@ def plot_field_maps(
     save_figure(fig, path)
 
 
-def _plan(ax, positions: np.ndarray, measured: list[int]) -> None:
+def _plan(ax, positions: np.ndarray, measured: list[int], labels: tuple[str, str]) -> None:
     """Plan view of the field: pivots (east, north), the measured ones marked, the tower at the origin."""
-    ax.scatter(positions[:, 0], positions[:, 1], s=8, color="0.55", label="raytraced (ideal)")
-    ax.scatter(
-        positions[measured, 0], positions[measured, 1], s=28, color="tab:red", label="measured (model)"
-    )
+    ax.scatter(positions[:, 0], positions[:, 1], s=8, color="0.55", label=labels[0])
+    ax.scatter(positions[measured, 0], positions[measured, 1], s=28, color="tab:red", label=labels[1])
     ax.scatter([0.0], [0.0], s=60, marker="^", color="k", label="tower")
     ax.set_aspect("equal")
     ax.set_xlabel("east (m)", fontsize=8)
     ax.set_ylabel("north (m)", fontsize=8)
     ax.tick_params(labelsize=7)
     ax.legend(fontsize=7, loc="lower left")
-    ax.set_title(f"field: {len(positions)} heliostats, {len(measured)} measured", fontsize=9)
+    ax.set_title(f"field: {len(positions)} heliostats, {len(measured)} {labels[1].split()[0]}", fontsize=9)

@@ -8,11 +8,12 @@ beam spread (sun shape convolved with the slope error, sun.radial_density) enter
 footprint of each central ray, flux = power * f(theta) * cos(gamma) / r^2. The approximation that
 makes a field cheap: per heliostat one footprint, that of its power-weighted mean ray (raytrace
 takes one per facet; across a heliostat the ray direction changes by its size over the slant
-range, ~1 %), and each heliostat's spot is computed on its own grid of WINDOW x WINDOW cells that
-covers the spot's reach on the receiver, with cells an integer number k of receiver pixels wide,
-then interpolated bilinearly onto the receiver pixels. Near heliostats (small spots) get k = 1,
-the receiver's own pixels, which reproduces raytrace's kernel image; far ones, whose spots are
-smooth on the scale of the slope-error blur, get coarser cells. The footprint is evaluated only as
+range, ~1 %), with its own slope error where FieldHeliostats.slope_error gives one, and each
+heliostat's spot is computed on its own grid of WINDOW x WINDOW cells that covers the spot's reach
+on the receiver, with cells an integer number k of receiver pixels wide, then interpolated
+bilinearly onto the receiver pixels. Near heliostats (small spots) get k = 1, the receiver's own
+pixels, which reproduces raytrace's kernel image; far ones, whose spots are smooth on the scale of
+the slope-error blur, get coarser cells. The footprint is evaluated only as
 far as it reaches (heliostats are traced in chunks of similar slant range, so a chunk shares that
 extent), averaged over q x q points per cell where it is sharp on the scale of a cell and sampled at
 the cell centre where its finest structure (sun.finest_scale) spans SMOOTH_CELLS cells or more
@@ -100,6 +101,8 @@ class FieldHeliostats:
         facet_axes: (N, F, 3, 3) facet frames, columns = facet right, up, normal.
         facet_half_size: (N, F, 2) half width and half height of each facet (m).
         radius: (N,) radius of a sphere about the pivot that holds the whole mirror (m).
+        slope_error: (N,) each heliostat's own slope error (rad, per axis; the beam spread it adds
+            to the sun's), or None: the optics' slope error for every heliostat (field_flux).
     """
 
     position: Tensor
@@ -112,19 +115,21 @@ class FieldHeliostats:
     facet_axes: Tensor
     facet_half_size: Tensor
     radius: Tensor
+    slope_error: Tensor | None = None
 
     def __len__(self) -> int:
         return len(self.position)
 
     @staticmethod
-    def stack(heliostats: Sequence[Heliostat], cells_per_side: int = 8, dtype: torch.dtype | None = None
-              ) -> FieldHeliostats:
+    def stack(heliostats: Sequence[Heliostat], cells_per_side: int = 8, dtype: torch.dtype | None = None,
+              slope_error: Sequence[float] | None = None) -> FieldHeliostats:
         """Batch a list of heliostats that share the facet count and control-point grid.
 
         Args:
             heliostats: N heliostats, each with its own position and errors.
             cells_per_side: each facet is sampled on cells_per_side^2 equal cells.
             dtype: dtype of the tensors; default that of the first heliostat.
+            slope_error: N slope errors (rad), each heliostat's own; None: the optics' for all.
         """
         if not heliostats:
             raise ValueError("a field needs at least one heliostat")
@@ -149,9 +154,12 @@ class FieldHeliostats:
                                       for h in heliostats], dtype=dtype, device=size.device)
         sag = (size**2).sum(-1).amax(-1) * inverse_focal / 16
         radius = (translation.norm(dim=-1) + size.norm(dim=-1) / 2).amax(-1) + sag
+        if slope_error is not None and len(slope_error) != len(heliostats):
+            raise ValueError(f"{len(slope_error)} slope errors for {len(heliostats)} heliostats")
+        own = None if slope_error is None else torch.tensor(list(slope_error), dtype=dtype, device=size.device)
         return FieldHeliostats(stack("position"), tuple(h.mount for h in heliostats), stack("tracking_error"),
                                points.to(dtype), normals.to(dtype), area.to(dtype), translation, axes,
-                               size / 2, radius)
+                               size / 2, radius, own)
 
 
 def _sample(heliostats: Sequence[Heliostat], cells_per_side: int) -> tuple[Tensor, Tensor, Tensor]:
@@ -437,7 +445,8 @@ def _trace_chunk(field, rows, rot, rects, receiver, sun, aim, optics, candidates
     if optics.transmittance is not None:
         transmittance = optics.transmittance((aim[rows] - field.position[rows]).norm(dim=-1))
     arriving = sent * transmittance[:, None]
-    spots = _spots(points, ray, arriving, receiver, optics)
+    own = None if field.slope_error is None else field.slope_error[rows]
+    spots = _spots(points, ray, arriving, receiver, optics, own)
     on_receiver = spots.sums() * receiver.pixel_area
     terms = {
         "incident": incident.sum(-1),
@@ -480,12 +489,22 @@ class _Spots:
         return torch.einsum("bc,bcd,bd->b", self.row_weights.sum(1), self.cells, self.col_weights.sum(1))
 
 
-def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics: Optics) -> _Spots:
+def _optics_groups(optics: Optics, slope_error: Tensor | None) -> list[tuple[Tensor | slice, Optics]]:
+    """[(members: (B,) bool or slice(None) for all, their optics)]: heliostats with the same slope
+    error share a footprint; slope_error (B,) rad, each heliostat's own, or None: all take `optics`."""
+    if slope_error is None:
+        return [(slice(None), optics)]
+    return [(slope_error == value, replace(optics, slope_error=float(value))) for value in slope_error.unique()]
+
+
+def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics: Optics,
+           slope_error: Tensor | None = None) -> _Spots:
     """Flux of B heliostats' cells on the receiver (see the module docstring).
 
     Args:
         points: (B, P, 3) cell centres (m); ray: (B, P, 3) unit central reflected rays;
-        power: (B, P) power arriving at the receiver plane (W).
+        power: (B, P) power arriving at the receiver plane (W);
+        slope_error: (B,) each heliostat's own slope error (rad), or None: the optics'.
     """
     rows, cols = receiver.resolution
     pw, ph = receiver.pixel_size
@@ -502,17 +521,23 @@ def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics:
     weight = torch.where(total > 0, power / total.clamp_min(1e-30), 1 / power.shape[1])
     unit = normalize((weight[..., None] * ray).sum(1)) @ torch.stack((normal, right, up), dim=-1)  # (B, 3)
     path = (weight * t).sum(-1)
-    reach = support_radius(optics.sun, optics.slope_error) * path / unit[:, 0].abs().clamp_min(1e-6)  # (B,) m
+    groups = _optics_groups(optics, slope_error)
+    radius = path.new_empty(len(path))
+    for members, own in groups:
+        radius[members] = support_radius(own.sun, own.slope_error)
+    reach = radius * path / unit[:, 0].abs().clamp_min(1e-6)  # (B,) m
     lit = power > 0
     (x0, kx, nx), (y0, ky, ny) = _window(x, lit, reach / pw, cols), _window(y, lit, reach / ph, rows)
     size = int(max(nx.max(), ny.max()))  # the chunk's grid: as many cells as its widest window needs
     # Deposit: padded grid coordinates, (1, 1) = centre of the first cell.
     cells = deposit((x - x0) / kx + 0.5, (y - y0) / ky + 0.5, power, (size, size))  # (B, C, C)
     cell = torch.cat((kx * pw, ky * ph), -1)  # (B, 2) cell width, height (m)
-    if optics.sun.kind == "point" and optics.slope_error == 0:
-        flux = cells / (cell[:, 0] * cell[:, 1])[:, None, None]  # the beam does not spread
-    else:
-        flux = _convolve_footprint(cells, unit, path, cell, reach, optics)
+    flux = torch.empty_like(cells)
+    for m, own in groups:  # m: the heliostats of one slope error
+        if own.sun.kind == "point" and own.slope_error == 0:
+            flux[m] = cells[m] / (cell[m, 0] * cell[m, 1])[:, None, None]  # the beam does not spread
+        else:
+            flux[m] = _convolve_footprint(cells[m], unit[m], path[m], cell[m], reach[m], own)
     return _Spots(flux, _interpolation(rows, y0, ky, size), _interpolation(cols, x0, kx, size))
 
 

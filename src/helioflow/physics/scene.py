@@ -65,9 +65,7 @@ class Scene:
         are traced as given: a change of one facet's entry then changes that facet alone (what a
         Jacobian per facet needs, models/uncertainty.py)."""
         physics = self._physics(effects)
-        h = physics.heliostat
-        effective = tensors if projected else effective_tensors(tensors)
-        h = replace(h, **{TENSOR_EFFECTS[k].field: v * 1e-3 for k, v in effective.items()})
+        h = with_tensors(physics.heliostat, tensors if projected else effective_tensors(tensors))
         rays = self.rays
         if facets is not None:
             h, rays = h.facets(facets), max(1, self.rays * len(facets) // h.n_facets)
@@ -136,6 +134,12 @@ def photographed(physics, target: Target, traced: Tensor | tuple[Tensor, Tensor]
         return images
     gain = physics.camera.gain if physics.camera is not None else 1.0
     return images, (launched / target.pixel_area - flux.sum((-2, -1))).clamp_min(0.0) * gain
+
+
+def with_tensors(heliostat: Heliostat, effective: dict[str, Tensor]) -> Heliostat:
+    """The heliostat with the fit tensors as it takes them (`effective_tensors`: tracking (5,) mrad,
+    canting (F, 2) mrad, surface (F, C, C) mm) in place of its own tracking, canting and heights."""
+    return replace(heliostat, **{TENSOR_EFFECTS[k].field: v * 1e-3 for k, v in effective.items()})
 
 
 def effective_tensors(tensors: dict[str, Tensor]) -> dict[str, Tensor]:

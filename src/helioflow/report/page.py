@@ -17,8 +17,11 @@ benchmark files, and writes results/<experiment>/report.html with the sections
                         and field/metrics.json as tables
     Leave-one-out       figures/leave_one_out/<d>.png and leave_one_out/<d>.csv (held-out scores
                         per real image and network) as a table
-    The plant           plant/heliostats.csv: a summary and the worst heliostats (by pointing
-                        error), readable for hundreds of heliostats; the whole table as a download
+    The plant           plant/shared.json (what the heliostats share), plant/plan.png (the plant's
+                        plan by pointing error), plant/heliostats.csv: a summary and the worst
+                        heliostats (by pointing error), readable for hundreds of heliostats; the
+                        whole table as a download; plant/flux/<plant>.json and .png: the flux on
+                        its receiver, ideal and calibrated, and the spots calibration moves most
     Run times           benchmarks/<rule>/<wildcards>.tsv (snakemake's benchmark files)
 
 A section whose files are all absent from the inputs says "Not part of this experiment".
@@ -53,7 +56,7 @@ from helioflow.report.html import (
 
 SECTIONS = ("datasets", "dataset_figures", "paint_centroids", "table", "samples", "psnr", "data_efficiency",
             "recovery", "plan", "diagnosis", "diagnosis_figures", "field", "leave_one_out", "plant",
-            "plant_shared")
+            "plant_plan", "plant_shared", "plant_flux")
 PLANT_WORST = 20  # heliostats listed in the report's plant section
 ABSENT = '<p class="absent">Not part of this experiment.</p>'
 
@@ -189,6 +192,9 @@ def _plant_section(files: dict[str, list[str]]) -> str:
     from helioflow.scoring.plant import COLUMNS
 
     parts = [_shared_part(path) for path in files["plant_shared"]]
+    parts += [figure(path, "The plant's plan: each calibrated heliostat at its pivot, coloured by its pointing "
+                     "error, its marker the effects its diagnosis named, flagged ones ringed red")
+              for path in files["plant_plan"]]
     for path in files["plant"]:
         try:
             records = list(csv.DictReader(io.StringIO(read_bytes(path).decode("utf-8"))))
@@ -214,7 +220,32 @@ def _plant_section(files: dict[str, list[str]]) -> str:
                   table(["heliostat", "images", "held-out error, configured", "with named effects", "named effects",
                          "pointing error (mrad) ± sigma", "canting RMS (mrad)", "surface RMS (mm)", "flags"], rows),
                   download(path)]
+    parts += [_plant_flux_part(path) for path in files["plant_flux"] if path.endswith(".json")]
+    parts += [figure(path, f"Plant {Path(path).stem}: ideal and calibrated flux maps on its receiver, and their "
+                     "difference") for path in files["plant_flux"] if path.endswith(".png")]
     return "\n".join(parts)
+
+
+def _plant_flux_part(path: str) -> str:
+    """plant/flux/<plant>.json (field.plant): per design point the calibrated map and the ideal one
+    against it, and the PLANT_WORST heliostats whose spots calibration moves furthest."""
+    data = read_json(path)
+    if not isinstance(data, dict) or "design_points" not in data:
+        raise DataError(f"{path}: not a plant flux map (written by `plant-flux`): needs design_points")
+    rows = [[point, fixed(p["calibrated"]["peak_flux_kw_m2"], 2), fixed(p["calibrated"]["power_on_receiver_kw"], 1),
+             fixed(p["calibrated"]["intercept"], 3), fixed(p["ideal"]["flux_accuracy"], 3),
+             f"{100 * p['ideal']['peak_flux_error']:+.1f} %", fixed(p["ideal"]["centroid_error_m"], 3)]
+            for point, p in data["design_points"].items()]
+    shifts = sorted(((h["shift_m"], name, point) for point, p in data["design_points"].items()
+                     for name, h in p["heliostats"].items() if h["shift_m"] is not None), reverse=True)[:PLANT_WORST]
+    return "\n".join([
+        f"<h3>Flux on the receiver of {esc(Path(path).stem)}: {data['heliostats']} heliostats, "
+        f"{len(data['calibrated'])} calibrated</h3>",
+        table(["design point", "peak (kW/m²)", "on the receiver (kW)", "intercept", "ideal map: flux accuracy",
+               "its peak error", "its centroid error (m)"], rows),
+        table(["heliostat", "design point", "spot moved by calibration (m)"],
+              [[name, point, fixed(shift, 3)] for shift, name, point in shifts]) if shifts else "",
+        download(path, "application/json")])
 
 
 def _shared_part(path: str) -> str:
@@ -251,7 +282,7 @@ LAYOUT = (
     ("ledger", "Error ledger", ("diagnosis",), ledger_section),
     ("field", "Field flux maps", ("field",), _field_section),
     ("leave_one_out", "Leave-one-out on real images", ("leave_one_out",), _leave_one_out_section),
-    ("plant", "The plant", ("plant_shared", "plant"), _plant_section),
+    ("plant", "The plant", ("plant_shared", "plant", "plant_plan", "plant_flux"), _plant_section),
 )
 
 

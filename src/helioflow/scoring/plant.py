@@ -3,6 +3,7 @@
 Columns of results/<experiment>/plant/heliostats.csv:
 
 - plant, heliostat, dataset: the plant entry, the PAINT folder and its generated dataset;
+- east_m, north_m: the heliostat's pivot (ENU, m; the tower at the origin), from its dataset;
 - images: calibration images of the dataset;
 - heldout_error_ideal, heldout_error_calibrated: the diagnosis' held-out error (misplaced flux
   fraction, diagnosis.json `heldout_error`) of the configured model, and of the model with the
@@ -37,7 +38,8 @@ from helioflow.models.registry import load_model
 from helioflow.physics.heliostat import Heliostat
 from helioflow.scoring.recovery import pointing_angles_mrad, surface_heights
 
-COLUMNS = ("plant", "heliostat", "dataset", "images", "heldout_error_ideal", "heldout_error_calibrated",
+COLUMNS = ("plant", "heliostat", "dataset", "east_m", "north_m", "images", "heldout_error_ideal",
+           "heldout_error_calibrated",
            "named_effects", "pointing_error_mrad", "pointing_error_sigma_mrad", "canting_rms_mrad", "surface_rms_mm",
            "flags")
 DRAWS = 512  # tracking draws from the covariance for the pointing error's sigma
@@ -77,7 +79,11 @@ def heliostat_row(plant: str, heliostat: str, dataset: str, dataset_path: str | 
     tensors = {k: v.detach().cpu().double() for k, v in fitted.tensors.items()}
     u = fitted.uncertainty
     flags = []
-    row = {"plant": plant, "heliostat": heliostat, "dataset": dataset, "images": len(ds.images), "heldout_error_ideal": round(float(diagnosis["heldout_error"]), 5),
+    pivot = ds.attrs.get("heliostat_position_m") or ["", ""]
+    row = {"plant": plant, "heliostat": heliostat, "dataset": dataset,
+           "east_m": pivot[0] if pivot[0] == "" else round(float(pivot[0]), 2),
+           "north_m": pivot[1] if pivot[1] == "" else round(float(pivot[1]), 2),
+           "images": len(ds.images), "heldout_error_ideal": round(float(diagnosis["heldout_error"]), 5),
            "heldout_error_calibrated": round(float(diagnosis["remaining"]["error"]), 5),
            "named_effects": ";".join(dict.fromkeys(c.split(":")[0] for c in diagnosis["remaining"]["changes"])),
            "pointing_error_mrad": "", "pointing_error_sigma_mrad": "", "canting_rms_mrad": "", "surface_rms_mm": ""}
@@ -102,9 +108,11 @@ def heliostat_row(plant: str, heliostat: str, dataset: str, dataset_path: str | 
     return row
 
 
-def write_plant_table(spec: dict, output_csv: str | os.PathLike) -> list[dict]:
+def write_plant_table(spec: dict, output_csv: str | os.PathLike, plan_png: str | os.PathLike | None = None
+                      ) -> list[dict]:
     """The plant table of `spec` ({"pointing_limit_mrad": float, "heliostats": [{plant, heliostat, dataset,
-    and the paths dataset_path, model_path, diagnosis_path}]}) written to `output_csv`; returns its rows."""
+    and the paths dataset_path, model_path, diagnosis_path}]}) written to `output_csv`, and its plan figure
+    to `plan_png` (scoring.plant_figure) when given; returns its rows."""
     rows = [heliostat_row(h["plant"], h["heliostat"], h["dataset"], h["dataset_path"], h["model_path"],
                           h["diagnosis_path"], spec["pointing_limit_mrad"]) for h in spec["heliostats"]]
     text = io.StringIO()
@@ -112,4 +120,8 @@ def write_plant_table(spec: dict, output_csv: str | os.PathLike) -> list[dict]:
     writer.writeheader()
     writer.writerows(rows)
     write_text_atomic(output_csv, text.getvalue())
+    if plan_png is not None:
+        from helioflow.scoring.plant_figure import plot_plant_plan
+
+        plot_plant_plan(plan_png, rows, spec["pointing_limit_mrad"])
     return rows
