@@ -303,7 +303,8 @@ def _plant_rows(n: int) -> list[dict]:
     return [{"plant": "plant", "heliostat": f"P{k:03d}", "dataset": f"plant_P{k:03d}", "east_m": 4.0 * k - 20,
              "north_m": 30.0 + k % 3, "images": 16, "heldout_error_ideal": 0.2, "heldout_error_calibrated": 0.05,
              "named_effects": kinds[k % len(kinds)], "pointing_error_mrad": round(0.2 * k, 3),
-             "pointing_error_sigma_mrad": 0.01, "canting_rms_mrad": "", "surface_rms_mm": "",
+             "pointing_error_sigma_mrad": 0.01, "canting_rms_mrad": 0.31, "canting_rms_sigma_mrad": 0.02,
+             "surface_rms_mm": "", "surface_rms_sigma_mm": "",
              "flags": "pointing > 1 mrad" if k >= n - 2 else ""} for k in range(n)]
 
 
@@ -332,6 +333,7 @@ def test_the_plant_section_shows_the_plan_the_worst_heliostats_and_the_plants_fl
     assert '<td>heliostats</td><td class="num">12</td>' in text and '<td>flagged</td><td class="num">2</td>' in text
     worst = re.findall(r"<tr><td>(P\d+)</td>", text)
     assert worst[:3] == ["P011", "P010", "P009"]  # by pointing error, largest first
+    assert "<td>0.310 ± 0.020</td><td>–</td>" in text
     assert text.count("data:image/png;base64,") == 2 and "coloured by its pointing error" in text
     assert "Flux on the receiver of plant: 14 heliostats, 2 calibrated" in text
     cells = re.sub(r' class="num"', "", text)

@@ -2,6 +2,7 @@
 normals, and its sigma from the fit's covariance against first-order propagation."""
 
 import numpy as np
+import pytest
 import torch
 
 from helioflow.physics.heliostat import ideal_heliostat
@@ -41,3 +42,42 @@ def test_the_sigma_is_the_first_order_propagation_of_the_covariance():
     linear = float(np.sqrt(gradient @ covariance @ gradient))
     assert rms > 0.5 and sigma == np.float64(sigma)
     assert abs(sigma / linear - 1.0) < 0.1  # 512 draws: the sample std is within ~6 % at 95 %
+
+
+def _uncertainty(names, values, covariance, undetermined=()):
+    from helioflow.models.uncertainty import FitUncertainty
+
+    return FitUncertainty(list(names), ["mrad"] * len(names), np.asarray(values, float), np.asarray(covariance, float),
+                          1.0, 1.0, 1.0, undetermined=list(undetermined))
+
+
+def test_the_canting_rms_sigma_is_the_first_order_propagation_of_the_covariance():
+    from helioflow.scoring.plant import tensor_rms
+
+    tilts = torch.tensor([[0.8, -0.3], [-0.5, 0.6], [0.2, -0.9], [-0.5, 0.6]], dtype=torch.float64)  # mrad
+    names = [f"canting.facet_tilts_mrad[{f}, {a}]" for f in range(4) for a in range(2)]
+    rng = np.random.default_rng(2)
+    root = rng.normal(0.0, 0.03, (8, 8))
+    covariance = root @ root.T + np.eye(8) * 1e-3
+    value, sigma, undetermined = tensor_rms(tilts, "canting", _uncertainty(names, tilts.flatten(), covariance))
+    assert value == pytest.approx(float(tilts.pow(2).mean().sqrt()))
+    gradient = (tilts.flatten() / (8 * value)).numpy()  # d RMS / d entry
+    linear = float(np.sqrt(gradient @ covariance @ gradient))
+    assert abs(sigma / linear - 1.0) < 0.12 and not undetermined  # 512 draws; RMS is nearly linear here
+    value, sigma, undetermined = tensor_rms(tilts, "canting", _uncertainty(names[:2], [0.8, -0.3], np.eye(2) * 1e-6,
+                                                                           undetermined=[names[1]]))
+    assert sigma < 1e-3 and undetermined  # two entries known to 1e-3 mrad, one not determined
+    assert tensor_rms(tilts, "canting", None)[1:] == (None, False)
+
+
+def test_the_surface_rms_is_that_of_the_heights_the_control_points_span():
+    from helioflow.scoring.plant import tensor_rms
+    from helioflow.scoring.recovery import surface_heights
+
+    heights = torch.zeros(4, 6, 6, dtype=torch.float64)
+    heights[1, 2:4, 2:4] = 0.5  # a bump of half a millimetre on facet 1
+    names = [f"surface.control_heights_mm[{f}, {i}, {j}]" for f in range(4) for i in range(6) for j in range(6)]
+    value, sigma, _ = tensor_rms(heights, "surface", _uncertainty(names, heights.flatten(), np.zeros((144, 144))),
+                                 heights=True)
+    assert value == pytest.approx(float(surface_heights(heights).pow(2).mean().sqrt())) and 0 < value < 0.5
+    assert sigma == pytest.approx(0.0, abs=1e-12)

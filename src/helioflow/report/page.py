@@ -210,20 +210,29 @@ def _plant_section(files: dict[str, list[str]]) -> str:
         summary = [["heliostats", len(records)], ["flagged", len(flagged)],
                    *[[f"named: {effect}", count] for effect, count in sorted(named.items(), key=lambda kv: -kv[1])]]
         worst = sorted(records, key=lambda r: -(_number(r["pointing_error_mrad"]) or 0.0))[:PLANT_WORST]
-        shown = lambda text, digits: "–" if _number(text) is None else fixed(_number(text), digits)  # noqa: E731
-        rows = [[r["heliostat"], r["images"], shown(r["heldout_error_ideal"], 4), shown(r["heldout_error_calibrated"], 4),
-                 r["named_effects"] or "none",
-                 f"{shown(r['pointing_error_mrad'], 3)} ± {shown(r['pointing_error_sigma_mrad'], 3)}",
-                 shown(r["canting_rms_mrad"], 3), shown(r["surface_rms_mm"], 4), r["flags"]] for r in worst]
+        rows = [[r["heliostat"], r["images"], _shown(r["heldout_error_ideal"], 4),
+                 _shown(r["heldout_error_calibrated"], 4), r["named_effects"] or "none",
+                 _shown(r["pointing_error_mrad"], 3, r["pointing_error_sigma_mrad"]),
+                 _shown(r["canting_rms_mrad"], 3, r["canting_rms_sigma_mrad"]),
+                 _shown(r["surface_rms_mm"], 4, r["surface_rms_sigma_mm"]), r["flags"]] for r in worst]
         parts += [table(["", "count"], summary),
                   f"<h3>The {len(worst)} heliostats with the largest pointing error</h3>",
                   table(["heliostat", "images", "held-out error, configured", "with named effects", "named effects",
-                         "pointing error (mrad) ± sigma", "canting RMS (mrad)", "surface RMS (mm)", "flags"], rows),
+                         "pointing error (mrad) ± sigma", "canting RMS (mrad) ± sigma", "surface RMS (mm) ± sigma",
+                         "flags"], rows),
                   download(path)]
     parts += [_plant_flux_part(path) for path in files["plant_flux"] if path.endswith(".json")]
     parts += [figure(path, f"Plant {Path(path).stem}: ideal and calibrated flux maps on its receiver, and their "
                      "difference") for path in files["plant_flux"] if path.endswith(".png")]
     return "\n".join(parts)
+
+
+def _shown(text: str, digits: int, sigma: str | None = None) -> str:
+    """A table cell's number with `digits` decimals, "± sigma" where one is given; "–" for none."""
+    value, spread = _number(text), _number(sigma)
+    if value is None:
+        return "–"
+    return fixed(value, digits) if spread is None else f"{fixed(value, digits)} ± {fixed(spread, digits)}"
 
 
 def _plant_flux_part(path: str) -> str:

@@ -13,12 +13,14 @@ Columns of results/<experiment>/plant/heliostats.csv:
   angle between the mirror normal of the fitted kinematics (the physics model's `tracking`) and
   of the ideal one, and its standard deviation over draws of the tracking parameters from the fit's
   covariance (models/uncertainty.py; empty where the fit has none);
-- canting_rms_mrad, surface_rms_mm: RMS of the fitted facet tilts and of the fitted surface heights
-  (without each facet's plane, as the fit defines them; empty where the model fits none); these carry
-  no sigma here (the per-entry sigmas and the "not determined" flags are in the model's uncertainty);
+- canting_rms_mrad, surface_rms_mm: RMS of the fitted facet tilts (without their mean) and of the
+  fitted surface heights (without each facet's plane), as the heliostat takes them
+  (physics.scene.effective_tensors; empty where the model fits none), each with its sigma
+  (canting_rms_sigma_mrad, surface_rms_sigma_mm: the standard deviation of the RMS over draws of the
+  entries from the fit's covariance; empty where the fit has none);
 - flags: ';'-separated: `pointing > <limit> mrad` (config plant.pointing_limit_mrad),
-  `tracking not determined` (a tracking parameter the fit cannot pin down), `residual <k> x noise`
-  (what the diagnosis could not explain).
+  `tracking not determined`, `canting not determined`, `surface not determined` (entries the fit
+  cannot pin down, models/uncertainty.py), `residual <k> x noise` (what the diagnosis could not explain).
 """
 
 from __future__ import annotations
@@ -35,13 +37,14 @@ from helioflow.data.hdf5 import read_dataset
 from helioflow.errors import DataError
 from helioflow.io import write_text_atomic
 from helioflow.models.registry import load_model
+from helioflow.physics.effects import TENSOR_EFFECTS
 from helioflow.physics.heliostat import Heliostat
+from helioflow.physics.scene import effective_tensors
 from helioflow.scoring.recovery import pointing_angles_mrad, surface_heights
 
 COLUMNS = ("plant", "heliostat", "dataset", "east_m", "north_m", "images", "heldout_error_ideal",
-           "heldout_error_calibrated",
-           "named_effects", "pointing_error_mrad", "pointing_error_sigma_mrad", "canting_rms_mrad", "surface_rms_mm",
-           "flags")
+           "heldout_error_calibrated", "named_effects", "pointing_error_mrad", "pointing_error_sigma_mrad",
+           "canting_rms_mrad", "canting_rms_sigma_mrad", "surface_rms_mm", "surface_rms_sigma_mm", "flags")
 DRAWS = 512  # tracking draws from the covariance for the pointing error's sigma
 
 
@@ -59,6 +62,31 @@ def pointing_error(heliostat: Heliostat, tracking_mrad: torch.Tensor, covariance
                                     check_valid="ignore")
     spread = pointing_angles_mrad(heliostat, torch.as_tensor(draws), azimuth_deg, elevation_deg, aim_m)
     return rms, float(spread.pow(2).mean(-1).sqrt().std())
+
+
+def tensor_rms(effective: torch.Tensor, key: str, uncertainty, seed: int = 0, heights: bool = False
+               ) -> tuple[float, float | None, bool]:
+    """(RMS of a fitted tensor as the heliostat takes it (`effective`: canting (F, 2) mrad, or surface
+    control heights (F, C, C) mm, `heights`: of the surface they span, scoring.recovery.surface_heights),
+    its standard deviation over DRAWS draws of the tensor's entries from the fit's covariance (None
+    where it has none of them), whether any entry is not determined)."""
+    def rms(t: torch.Tensor) -> torch.Tensor:  # over the tensor's own dimensions, leading ones kept
+        return (surface_heights(t) if heights else t).pow(2).flatten(-effective.dim()).mean(-1).sqrt()
+
+    value = float(rms(effective))
+    prefix = f"{key}.{TENSOR_EFFECTS[key].key}["
+    at = [k for k, n in enumerate(uncertainty.names) if n.startswith(prefix)] if uncertainty is not None else []
+    if not at:
+        return value, None, False
+    flat = [int(np.ravel_multi_index(tuple(int(i) for i in uncertainty.names[k][len(prefix):-1].split(",")),
+                                     effective.shape)) for k in at]
+    rng = np.random.default_rng(seed)
+    draws = rng.multivariate_normal(uncertainty.values[at], uncertainty.covariance[np.ix_(at, at)], DRAWS,
+                                    check_valid="ignore")
+    tensors = effective.reshape(1, -1).repeat(DRAWS, 1).double()
+    tensors[:, flat] = torch.as_tensor(draws)
+    spread = float(rms(tensors.reshape(DRAWS, *effective.shape)).std())
+    return value, spread, any(uncertainty.names[k] in uncertainty.undetermined for k in at)
 
 
 def heliostat_row(plant: str, heliostat: str, dataset: str, dataset_path: str | os.PathLike,
@@ -86,7 +114,7 @@ def heliostat_row(plant: str, heliostat: str, dataset: str, dataset_path: str | 
            "images": len(ds.images), "heldout_error_ideal": round(float(diagnosis["heldout_error"]), 5),
            "heldout_error_calibrated": round(float(diagnosis["remaining"]["error"]), 5),
            "named_effects": ";".join(dict.fromkeys(c.split(":")[0] for c in diagnosis["remaining"]["changes"])),
-           "pointing_error_mrad": "", "pointing_error_sigma_mrad": "", "canting_rms_mrad": "", "surface_rms_mm": ""}
+           **dict.fromkeys(COLUMNS[COLUMNS.index("pointing_error_mrad"):-1], "")}
     if "tracking" in tensors:
         at = [k for k, n in enumerate(u.names) if n.startswith("tracking.")] if u is not None else []
         covariance = u.covariance[np.ix_(at, at)] if len(at) == 5 else None
@@ -98,10 +126,15 @@ def heliostat_row(plant: str, heliostat: str, dataset: str, dataset_path: str | 
             flags.append(f"pointing > {pointing_limit_mrad:g} mrad")
         if u is not None and any(n.startswith("tracking.") for n in u.undetermined):
             flags.append("tracking not determined")
-    if "canting" in tensors:
-        row["canting_rms_mrad"] = round(float(tensors["canting"].pow(2).mean().sqrt()), 4)
-    if "surface" in tensors:
-        row["surface_rms_mm"] = round(float(surface_heights(tensors["surface"]).pow(2).mean().sqrt()), 5)
+    effective = effective_tensors(tensors)
+    for key, column, digits in (("canting", "canting_rms", 4), ("surface", "surface_rms", 5)):
+        if key in effective:
+            value, sigma, undetermined = tensor_rms(effective[key], key, u, heights=key == "surface")
+            unit = "mrad" if key == "canting" else "mm"
+            row[f"{column}_{unit}"] = round(value, digits)
+            row[f"{column}_sigma_{unit}"] = "" if sigma is None else round(sigma, digits)
+            if undetermined:
+                flags.append(f"{key} not determined")
     if not diagnosis["remaining"]["explained"]:  # the diagnosis' own verdict against its noise floor
         flags.append(f"residual {float(diagnosis['remaining']['over_noise']):.1f} x noise")
     row["flags"] = ";".join(flags)

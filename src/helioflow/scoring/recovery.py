@@ -162,11 +162,11 @@ def pointing_angles_mrad(heliostat: Heliostat, tracking_mrad: torch.Tensor, azim
 
 
 def surface_heights(control_heights_mm: torch.Tensor, samples_per_side: int = 64) -> torch.Tensor:
-    """(F, C, C) control heights (mm) -> (F, G, G) heights (mm) of the deformation at the centres of
-    G x G equal cells of each facet."""
+    """(..., F, C, C) control heights (mm) -> (..., F, G, G) heights (mm) of the deformation at the
+    centres of G x G equal cells of each facet."""
     basis = torch.as_tensor(bspline_basis((np.arange(samples_per_side) + 0.5) / samples_per_side,
                                           control_heights_mm.shape[-1])[0], dtype=control_heights_mm.dtype)
-    return torch.einsum("ui,fij,vj->fuv", basis, control_heights_mm, basis)
+    return torch.einsum("ui,...fij,vj->...fuv", basis, control_heights_mm, basis)
 
 
 def _split_psnr(model, info: dict, ds, model_path, dataset_path) -> dict[str, float]:
