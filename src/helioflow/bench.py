@@ -1,4 +1,4 @@
-"""Benchmarks that print numbers: `python -m helioflow.bench raytrace`, `... bench field` or `... bench fit`.
+"""Benchmarks that print numbers: `python -m helioflow.bench raytrace`, `... field`, `... fit` or `... dag`.
 
 raytrace: one 2 m x 2 m deformed heliostat 63 m from a 64 x 64 target (the sanity_check scene:
 Buie sun CSR 0.1, slope error 0.5 mrad).
@@ -19,6 +19,11 @@ clear-day attenuation, shading and blocking; one sun position. Each field in a f
 wall time of building the geometry and of the flux map (after a warm-up map of 10 heliostats that
 fills the footprint tables), peak RSS beside the RSS after imports, and the power budget. `--device cuda`
 runs it on a GPU (peak GPU memory added); `--json PATH` writes the figures to PATH as well.
+
+dag: `snakemake -n all` on the plant_demo variant with a plant of `--heliostats` heliostats (2000):
+a generated PAINT directory (in a temporary folder) of AA39-design heliostats on a grid north of
+the tower, 2 calibration images each (examples/plant_world/P000's, linked); prints the wall time,
+the peak memory of snakemake and the number of jobs it plans. Run it from the repository root.
 
 fit: drt's fit of a dataset's heliostat from its design (default: the default experiment's
 semi_sphere, 24 facets; `snakemake -j2 results/default/datasets/semi_sphere.h5` makes it), with the
@@ -308,14 +313,68 @@ def fit(dataset: str, heliostat: str, threads: int) -> None:
     _Fitter.traced = traced
 
 
+def write_plant_dir(folder, n: int, template="examples/plant_world", images: int = 2) -> None:
+    """A PAINT directory of n heliostats (folders H0000, H0001, ...) of the template's P000 design,
+    pivots on a grid 8 m x 10 m north of the tower from 40 m, each with the first `images`
+    calibrations of P000 (the PNGs linked, not copied)."""
+    import shutil
+    from pathlib import Path
+
+    source, folder = Path(template), Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copy(source / "tower-measurements.json", folder / "tower-measurements.json")
+    lat0, lon0, _ = json.loads((source / "tower-measurements.json").read_text())["power_plant_properties"]["coordinates"]
+    props = json.loads((source / "P000" / "heliostat-properties.json").read_text())
+    measured = sorted(source.glob("P000/*-calibration-properties.json"))[:images]
+    columns = math.ceil(math.sqrt(n))
+    for i in range(n):
+        east, north = 8.0 * (i % columns - columns / 2), 40.0 + 10.0 * (i // columns)
+        props["heliostat_position"] = [lat0 + north / 111_200.0, lon0 + east / (111_200.0 * math.cos(math.radians(lat0))),
+                                       props["heliostat_position"][2]]
+        target = folder / f"H{i:04d}"
+        target.mkdir(exist_ok=True)
+        (target / "heliostat-properties.json").write_text(json.dumps(props))
+        for m in measured:
+            shutil.copy(m, target / m.name)
+            png = m.with_name(m.name.replace("-calibration-properties.json", "-flux.png"))
+            (target / png.name).symlink_to(png.resolve())
+
+
+def dag(heliostats: int) -> None:
+    """The `dag` benchmark (module docstring)."""
+    import re
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as tmp:
+        start = time.perf_counter()
+        write_plant_dir(Path(tmp) / "plant", heliostats)
+        written = time.perf_counter() - start
+        config = Path(tmp) / "dag.yaml"
+        config.write_text(json.dumps({"experiment": "dag_bench", "datasets": {"plant": {"paint_dir": f"{tmp}/plant"}}}))
+        start = time.perf_counter()
+        run = subprocess.run(["snakemake", "-n", "all", "--quiet", "rules", "--configfile",
+                              "workflow/variants/plant_demo.yaml", str(config)], capture_output=True, text=True)
+        seconds = time.perf_counter() - start
+    if run.returncode:
+        raise SystemExit(f"snakemake -n failed:\n{run.stderr[-3000:]}")
+    jobs = re.search(r"^total\s+(\d+)", run.stdout + run.stderr, re.MULTILINE)
+    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    print(f"helioflow dag benchmark: plant_demo with {heliostats} heliostats, 2 images each (PAINT folders "
+          f"written in {written:.1f} s)")
+    print(f"snakemake -n all: {seconds:.1f} s, peak RSS {peak:.0f} MB, {jobs.group(1) if jobs else '?'} jobs planned")
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m helioflow.bench", description=__doc__.splitlines()[0])
-    ap.add_argument("name", choices=["raytrace", "field", "fit"])
+    ap.add_argument("name", choices=["raytrace", "field", "fit", "dag"])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--reference-rays", type=int, default=10**8, help="raytrace: rays per reference image")
     ap.add_argument("--sizes", type=int, nargs="+", default=FIELD_SIZES, help="field: heliostats per field")
     ap.add_argument("--device", default="cpu", help="field: cpu, cuda or auto")
     ap.add_argument("--json", metavar="PATH", help="field: also write the figures to PATH as JSON")
+    ap.add_argument("--heliostats", type=int, default=2000, help="dag: heliostats of the plant")
     ap.add_argument("--dataset", default="results/default/datasets/semi_sphere.h5", help="fit: the dataset")
     ap.add_argument("--heliostat", default="results/default/surfaces/multi_facet.h5",
                     help="fit: the true heliostat the dataset was traced from")
@@ -324,6 +383,8 @@ def main(argv: list[str] | None = None) -> None:
         field(args.threads, tuple(args.sizes), args.device, args.json)
     elif args.name == "fit":
         fit(args.dataset, args.heliostat, args.threads)
+    elif args.name == "dag":
+        dag(args.heliostats)
     else:
         raytrace(args.threads, args.reference_rays)
 
