@@ -20,14 +20,15 @@ import json
 import sys
 from pathlib import Path
 
-import h5py
 import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from paint_world import PLANT_DEMO, PNG_SIDE, Scene, plant_worlds, trace_image  # noqa: E402
 
+from helioflow.data.hdf5 import read_arrays  # noqa: E402
 from helioflow.data.paint import resample_area  # noqa: E402
+from helioflow.field.plant import MAPS, SCHEMA  # noqa: E402
 from helioflow.physics.geometry import plane_axes  # noqa: E402
 from helioflow.scoring.metrics import centroid_px, flux_accuracy  # noqa: E402
 
@@ -40,23 +41,23 @@ class _Plane:
         self.aim = center
 
 
-def true_spots(flux: h5py.File, worlds: dict, rays: int, dni_w_m2: float, seed: int) -> np.ndarray:
-    """(S, N, H, W) true flux (W/m^2) of every heliostat on the receiver grid of `flux`, by the generator."""
-    centre, normal = np.asarray(flux.attrs["receiver_center_m"]), np.asarray(flux.attrs["receiver_normal"])
-    width, height = flux.attrs["receiver_size_m"]
-    rows, cols = flux["ideal"].shape[1:]
+def true_spots(arrays: dict, attrs: dict, worlds: dict, rays: int, dni_w_m2: float, seed: int) -> np.ndarray:
+    """(S, N, H, W) true flux (W/m^2) of every heliostat on the receiver grid of a plant flux file
+    (its arrays and attributes, field.plant.write_plant_flux), by the generator."""
+    centre, normal = np.asarray(attrs["receiver_center_m"]), np.asarray(attrs["receiver_normal"])
+    width, height = attrs["receiver_size_m"]
+    rows, cols = arrays["ideal"].shape[1:]
     right, up = (a.numpy() for a in plane_axes(torch.as_tensor(normal)))
-    names = [n.decode() if isinstance(n, bytes) else n for n in flux["heliostats/names"][()]]
     rng = np.random.default_rng(seed)
-    out = np.zeros((len(flux["design_points"]), len(names), rows, cols))
-    for j, name in enumerate(names):
-        offset, world = worlds[name]
+    out = np.zeros((len(arrays["design_points"]), len(arrays["heliostats/names"]), rows, cols))
+    for j, name in enumerate(arrays["heliostats/names"]):
+        offset, world = worlds[str(name)]
         world.camera = (0.0, 0.0)  # the receiver is not photographed
         scene = Scene(world.target)
         scene.position = scene.position + np.asarray(offset, float)
         scene.target, scene.right, scene.up = _Plane(centre, normal, width, height), right, up
         area = 4 * float((np.linalg.norm(scene.half_e, axis=-1) * np.linalg.norm(scene.half_n, axis=-1)).sum())
-        for i, (az, el) in enumerate(zip(flux["sun/azimuth_deg"][()], flux["sun/elevation_deg"][()])):
+        for i, (az, el) in enumerate(zip(arrays["sun/azimuth_deg"], arrays["sun/elevation_deg"])):
             hits = trace_image(scene, world, float(az), float(el), rays, rng)  # (256, 256) sum of cos(incidence)
             flux_png = hits * dni_w_m2 * area / rays / (width / PNG_SIDE * height / PNG_SIDE)  # W/m^2
             out[i, j] = resample_area(flux_png, (rows, cols))  # the mean over each map pixel
@@ -65,33 +66,29 @@ def true_spots(flux: h5py.File, worlds: dict, rays: int, dni_w_m2: float, seed: 
 
 def score(results: Path, paint_dir: Path, plant: str, seed: int, rays: int, dni_w_m2: float) -> dict:
     truth = json.loads((paint_dir / "truth.json").read_text())
-    worlds = plant_worlds(len(truth), seed)
-    with h5py.File(results / "plant" / "flux" / f"{plant}.h5") as flux:
-        spots = true_spots(flux, worlds, rays, dni_w_m2, seed)
-        maps = {m: flux[m][()] for m in ("ideal", "calibrated")}
-        points = [p.decode() if isinstance(p, bytes) else p for p in flux["design_points"][()]]
-        names = [n.decode() if isinstance(n, bytes) else n for n in flux["heliostats/names"][()]]
-        own = {m: flux[f"spots/{m}"][()] for m in ("ideal", "calibrated")}
-        calibrated = [n.decode() if isinstance(n, bytes) else n for n in flux["spots/names"][()]]
-        width, height = flux.attrs["receiver_size_m"]
-    rows_, cols_ = maps["ideal"].shape[1:]
-    pixel = np.array([height / rows_, width / cols_])  # (row, col) m
+    arrays, attrs = read_arrays(results / "plant" / "flux" / f"{plant}.h5", SCHEMA)
+    spots = true_spots(arrays, attrs, plant_worlds(len(truth), seed), rays, dni_w_m2, seed)
+    names = [str(n) for n in arrays["heliostats/names"]]
+    rows, cols = arrays["ideal"].shape[1:]
+    width, height = attrs["receiver_size_m"]
+    pixel = np.array([height / rows, width / cols])  # (row, col) m
     out = {}
-    for i, point in enumerate(points):
+    for i, point in enumerate(str(p) for p in arrays["design_points"]):
         true_map = spots[i].sum(0)
-        row = {m: {"flux_accuracy": round(float(flux_accuracy(maps[m][i], true_map)), 4),
-                   "power_error": round(float(maps[m][i].sum() / true_map.sum() - 1), 4)} for m in maps}
+        row = {m: {"flux_accuracy": round(float(flux_accuracy(arrays[m][i], true_map)), 4),
+                   "power_error": round(float(arrays[m][i].sum() / true_map.sum() - 1), 4)} for m in MAPS}
         row["heliostats"] = {}
-        for j, name in enumerate(calibrated):
+        for j, name in enumerate(str(n) for n in arrays["spots/names"]):
             true_centroid = centroid_px(spots[i, names.index(name)])
-            row["heliostats"][name] = {m: round(float(np.linalg.norm((centroid_px(own[m][i, j]) - true_centroid) * pixel)), 4)
-                                       for m in own}
+            row["heliostats"][name] = {
+                m: round(float(np.linalg.norm((centroid_px(arrays[f"spots/{m}"][i, j]) - true_centroid) * pixel)), 4)
+                for m in MAPS}
         out[point] = row
     centroid = {m: float(np.sqrt(np.mean([h[m] ** 2 for r in out.values() for h in r["heliostats"].values()])))
-                for m in ("ideal", "calibrated")}
+                for m in MAPS}
     return {"design_points": out,
             "mean_flux_accuracy": {m: round(float(np.mean([r[m]["flux_accuracy"] for r in out.values()])), 4)
-                                   for m in ("ideal", "calibrated")},
+                                   for m in MAPS},
             "spot_centroid_error_rms_m": {m: round(v, 4) for m, v in centroid.items()}}
 
 

@@ -40,7 +40,7 @@ def plot_field_maps(
     others = [m for m in names if m != reference]
     n_points, n_maps, n_diffs = len(points), len(names), len(others)
     fig = plt.figure(figsize=(2.1 * (n_maps + n_diffs) + 3.4, 2.7 * n_points + 0.9))
-    outer = fig.add_gridspec(1, 2, width_ratios=[1.5, 1.08 * (n_maps + n_diffs) + 0.3], wspace=0.12)
+    outer = fig.add_gridspec(1, 2, width_ratios=[1.5, 1.08 * (n_maps + n_diffs) + 0.3], wspace=0.22)
     _plan(fig.add_subplot(outer[0]), positions, measured, labels)
     # maps | colour bar | gap | differences | colour bar
     ratios = [1] * n_maps + [0.06, 0.12] + [1] * n_diffs + [0.06]
