@@ -192,9 +192,9 @@ def import_paint_params(config: dict, dataset: str) -> dict:
 
 def paint_heliostat_params(config: dict, heliostat: str) -> dict:
     """Parameters of rule `paint_heliostat`: the PAINT directory and folder of the heliostat."""
-    for d in paint_datasets(config):
-        if config["datasets"][d]["heliostat"] == heliostat:
-            return {"paint_dir": config["datasets"][d]["paint_dir"], "heliostat": heliostat}
+    for ds in config["datasets"].values():  # the first PAINT dataset of the heliostat (no list of them all)
+        if ds.get("source") == "paint" and ds["heliostat"] == heliostat:
+            return {"paint_dir": ds["paint_dir"], "heliostat": heliostat}
     raise ConfigError(f"no PAINT dataset takes heliostat {heliostat!r}; PAINT heliostats: "
                       f"{', '.join(paint_heliostats(config)) or 'none'}")
 
@@ -407,13 +407,15 @@ def report_inputs(config: dict) -> dict[str, list[str]]:
     datasets, networks = network_datasets(config), list(config.get("networks") or {})
     diagnosed = [Path(p).stem for p in diagnosis_paths(config)]
     efficiency = (config.get("data_efficiency") or {}).get("networks")
+    # a plant's heliostats get no figures of their own: the plant section summarises hundreds of them
+    plant = {d for members in plant_groups(config).values() for d in members}
     return {
         "datasets": dataset_paths(config),
-        "dataset_figures": [f"{r}/figures/datasets/{d}.png" for d in config["datasets"]],
-        "paint_centroids": [f"{r}/paint/{d}_centroids.json" for d in centroid_datasets(config)],
+        "dataset_figures": [f"{r}/figures/datasets/{d}.png" for d in config["datasets"] if d not in plant],
+        "paint_centroids": [f"{r}/paint/{d}_centroids.json" for d in centroid_datasets(config) if d not in plant],
         "table": [f"{r}/tables/table1.md", f"{r}/tables/table1.csv"] if networks else [],
-        "samples": [f"{r}/figures/{d}/{m}_samples.png" for d in datasets for m in networks],
-        "psnr": [f"{r}/figures/{d}/{m}_psnr.png" for d in datasets for m in networks],
+        "samples": [f"{r}/figures/{d}/{m}_samples.png" for d in datasets if d not in plant for m in networks],
+        "psnr": [f"{r}/figures/{d}/{m}_psnr.png" for d in datasets if d not in plant for m in networks],
         "data_efficiency": [f"{r}/figures/data_efficiency.png"] if efficiency else [],
         "recovery": recovery_paths(config),
         "plan": plan_paths(config),
@@ -881,15 +883,30 @@ def plant_shared_path(config: dict) -> list[str]:
     return [f"{results_dir(config)}/plant/shared.json"] if plant_shared_settings(config) is not None else []
 
 
+def evenly(items: list, n: int) -> list:
+    """Up to n of `items`, evenly across the list (the first and the last among them)."""
+    if len(items) <= n:
+        return list(items)
+    return [items[round(i * (len(items) - 1) / (n - 1))] for i in range(n)] if n > 1 else [items[0]]
+
+
 def plant_shared_spec(config: dict) -> dict:
     """Parameters and inputs of rule `plant_shared` (diagnosis.shared.plant_shared): the settings and,
-    per plant entry, each heliostat's dataset, geometry and model effects."""
+    per plant entry, its size and the heliostats the plant fit takes (`evenly`, plant.shared.heliostats
+    of them), each with its dataset, geometry and model effects. Only those are the rule's inputs: a
+    plant of thousands has one plant fit that every heliostat's fit waits for, and a short input list
+    keeps snakemake's DAG linear in the heliostats."""
     r = results_dir(config)
-    return {"settings": plant_shared_settings(config) or {}, "device": config["device"],
+    settings = plant_shared_settings(config)
+    if settings is None:
+        return {"settings": {}, "device": config["device"], "plants": {}, "sizes": {}}
+    groups = plant_groups(config)
+    return {"settings": settings, "device": config["device"],
             "plants": {plant: [{"heliostat": config["datasets"][d]["heliostat"], "dataset_path": f"{r}/datasets/{d}.h5",
                                 "heliostat_path": heliostat_path(config, d), "effects": model_effects(config, d)}
-                               for d in members]
-                       for plant, members in plant_groups(config).items()} if plant_shared_path(config) else {}}
+                               for d in evenly(members, settings["heliostats"])]
+                       for plant, members in groups.items()},
+            "sizes": {plant: len(members) for plant, members in groups.items()}}
 
 
 def plant_shared_inputs(config: dict) -> list[str]:
@@ -902,10 +919,12 @@ def shared_of(config: dict, dataset: str) -> dict | None:
     """{"path": plant/shared.json, "plant": its entry} for a heliostat of a plant whose shared effects
     the plant fit sets (rules train and diagnose take them from there: the key `shared` of their
     specs, absent for every other dataset), else None."""
-    plant = config["datasets"][dataset].get(PLANT_KEY)
-    if plant is None or FOLD_KEY in config["datasets"][dataset] or not plant_shared_path(config):
+    ds = config["datasets"][dataset]
+    # a plant heliostat's dataset: the plant fit runs unless `plant.shared: false` (plant_shared_settings),
+    # decided without going over every dataset (snakemake asks for every job)
+    if PLANT_KEY not in ds or FOLD_KEY in ds or (config.get("plant") or {}).get("shared", {}) is False:
         return None
-    return {"path": plant_shared_path(config)[0], "plant": plant}
+    return {"path": f"{results_dir(config)}/plant/shared.json", "plant": ds[PLANT_KEY]}
 
 
 def shared_inputs(config: dict, dataset: str) -> list[str]:

@@ -107,7 +107,7 @@ def test_every_heliostat_of_a_plant_takes_the_plant_fits_shared_effects():
     config = expand_config(validate_config(_config({"heliostats": ["AA31", "AA39"]})))
     config["networks"] = {"drt": {}, "gan": {}}
     spec = plant_shared_spec(config)
-    assert [h["heliostat"] for h in spec["plants"]["jul"]] == ["AA31", "AA39"]
+    assert [h["heliostat"] for h in spec["plants"]["jul"]] == ["AA31", "AA39"] and spec["sizes"] == {"jul": 2}
     assert spec["settings"]["heliostats"] == 8 and spec["plants"]["jul"][0]["effects"] == config["model"]["effects"]
     path = shared_inputs(config, "jul_AA31")[0]
     assert path == f"{results_dir(config)}/plant/shared.json"
@@ -160,3 +160,14 @@ def test_the_plant_flux_map_takes_every_heliostat_with_geometry_and_each_calibra
     assert plant_flux_spec(config) == {} and plant_flux_paths(config) == []
     with pytest.raises(ConfigError, match="no plant flux map for 'jul'"):
         plant_flux_inputs(config, "jul")
+
+
+def test_the_plant_fit_takes_its_heliostats_evenly_and_reads_only_theirs():
+    from helioflow.workflow import evenly, plant_shared_inputs, plant_shared_spec
+
+    assert evenly(list(range(10)), 4) == [0, 3, 6, 9] and evenly([1, 2], 8) == [1, 2] and evenly([5, 6, 7], 1) == [5]
+    config = expand_config(validate_config(_config({"heliostats": "all"})))
+    config.update(networks={"drt": {}}, diagnosis={}, plant={"shared": {"heliostats": 2}})
+    spec = plant_shared_spec(config)
+    assert [h["heliostat"] for h in spec["plants"]["jul"]] == ["AA31", "AC43"] and spec["sizes"] == {"jul": 3}
+    assert not any("AA39" in p for p in plant_shared_inputs(config))  # not taken: not an input

@@ -64,6 +64,7 @@ from helioflow.models.physics_fit import (
 )
 from helioflow.physics.effects import REGISTRY, fitted_parameters
 from helioflow.physics.scene import Scene, dataset_scene
+from helioflow.workflow import evenly
 
 log = logging.getLogger(__name__)
 
@@ -221,15 +222,16 @@ def plant_shared(spec: dict, output_json: str | os.PathLike) -> dict:
 
     spec: {"settings": heliostats, fit_images, heldout_images, fit_steps, cells_per_side, fit_rays
     (workflow.SHARED_DEFAULTS), "device": ..., "plants": {plant: [{"heliostat", "dataset_path",
-    "heliostat_path", "effects"}]}} (workflow.plant_shared_spec)."""
+    "heliostat_path", "effects"}]}, "sizes": {plant: its number of heliostats}} (workflow.plant_shared_spec,
+    which lists only the heliostats the fit takes; of a longer list it takes `settings["heliostats"]`
+    evenly, workflow.evenly)."""
     settings = spec["settings"]
     device = resolve_device(spec.get("device", "cpu"))
     out = {}
     for plant, heliostats in spec["plants"].items():
-        picked = [heliostats[i] for i in np.linspace(0, len(heliostats) - 1, min(settings["heliostats"], len(heliostats)))
-                  .round().astype(int)]
+        picked = evenly(heliostats, settings["heliostats"])
         out[plant] = fit_plant(plant, [member(h, settings, device) for h in picked], picked[0]["effects"], settings,
-                               len(heliostats))
+                               spec.get("sizes", {}).get(plant, len(heliostats)))
     write_text_atomic(output_json, json.dumps(out, indent=1))
     return out
 
