@@ -141,6 +141,13 @@ def test_clear_errors_for_a_network_a_heliostat_without_geometry_and_a_tower_wit
     shutil.copytree(PAINT, copy)
     with pytest.raises(DataError, match="tower-measurements.json: no entry 'receiver_top' to draw the flux map on"):
         _compose(tmp_path, _spec(_drt(tmp_path / "drt.pt"), copy, receiver="receiver_top"))
+    props = json.loads((copy / "AA28" / PROPERTIES_FILE).read_text())
+    props["facet_properties"]["facets"] = props["facet_properties"]["facets"][:2]
+    (copy / "AA28" / PROPERTIES_FILE).write_text(json.dumps(props))
+    odd = "AA28/heliostat-properties.json: 2 facets, but the plant's other heliostats have 4"
+    with pytest.raises(DataError, match=odd):
+        _compose(tmp_path, _spec(_drt(tmp_path / "drt.pt"), copy))
+    shutil.copy(PAINT / "AA28" / PROPERTIES_FILE, copy / "AA28" / PROPERTIES_FILE)
     tower = json.loads((copy / "tower-measurements.json").read_text())
     del tower["receiver"]["coordinates"]["receiver_outer_lower_left"]
     (copy / "tower-measurements.json").write_text(json.dumps(tower))

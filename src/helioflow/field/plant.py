@@ -37,6 +37,7 @@ import logging
 import math
 import os
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -131,6 +132,11 @@ def compose_plant(spec: dict, flux_path: str | os.PathLike, figure_path: str | o
         raise DataError(f"{spec['paint_dir']}: calibrated heliostat {missing[0]} has no folder with a "
                         f"{PROPERTIES_FILE} there; heliostats: {', '.join(names) or 'none'}")
     design = [read_heliostat_properties(f / PROPERTIES_FILE, tower)[0] for f in folders]
+    usual = Counter(h.n_facets for h in design).most_common(1)[0][0]
+    odd = [(f, h) for f, h in zip(folders, design) if h.n_facets != usual]  # the field tracer batches one layout
+    if odd:
+        raise DataError(f"{odd[0][0] / PROPERTIES_FILE}: {odd[0][1].n_facets} facets, but the plant's other "
+                        f"heliostats have {usual}; its flux map needs one facet layout for all of them")
     fitted, slopes = list(design), {}
     for c in spec["calibrated"]:
         k = names.index(c["heliostat"])
