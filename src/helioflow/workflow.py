@@ -883,19 +883,14 @@ def plant_shared_path(config: dict) -> list[str]:
     return [f"{results_dir(config)}/plant/shared.json"] if plant_shared_settings(config) is not None else []
 
 
-def evenly(items: list, n: int) -> list:
-    """Up to n of `items`, evenly across the list (the first and the last among them)."""
-    if len(items) <= n:
-        return list(items)
-    return [items[round(i * (len(items) - 1) / (n - 1))] for i in range(n)] if n > 1 else [items[0]]
-
-
 def plant_shared_spec(config: dict) -> dict:
     """Parameters and inputs of rule `plant_shared` (diagnosis.shared.plant_shared): the settings and,
-    per plant entry, its size and the heliostats the plant fit takes (`evenly`, plant.shared.heliostats
+    per plant entry, its size and the heliostats the plant fit takes (`data.splits.evenly`, plant.shared.heliostats
     of them), each with its dataset, geometry and model effects. Only those are the rule's inputs: a
     plant of thousands has one plant fit that every heliostat's fit waits for, and a short input list
     keeps snakemake's DAG linear in the heliostats."""
+    from helioflow.data.splits import evenly  # here: the Snakefile's helpers start without h5py
+
     r = results_dir(config)
     settings = plant_shared_settings(config)
     if settings is None:

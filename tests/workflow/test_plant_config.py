@@ -163,7 +163,8 @@ def test_the_plant_flux_map_takes_every_heliostat_with_geometry_and_each_calibra
 
 
 def test_the_plant_fit_takes_its_heliostats_evenly_and_reads_only_theirs():
-    from helioflow.workflow import evenly, plant_shared_inputs, plant_shared_spec
+    from helioflow.data.splits import evenly
+    from helioflow.workflow import plant_shared_inputs, plant_shared_spec
 
     assert evenly(list(range(10)), 4) == [0, 3, 6, 9] and evenly([1, 2], 8) == [1, 2] and evenly([5, 6, 7], 1) == [5]
     config = expand_config(validate_config(_config({"heliostats": "all"})))

@@ -135,3 +135,11 @@ def _strictly_inside(values: np.ndarray) -> np.ndarray:
     if values.min() == values.max():
         return np.ones(values.shape, dtype=bool)
     return (values > values.min()) & (values < values.max())
+
+
+def evenly(items: list, n: int) -> list:
+    """Up to n of `items`, evenly across the list (the first and the last among them): the
+    heliostats a plant fit takes (workflow.plant_shared_spec, diagnosis.shared)."""
+    if len(items) <= n:
+        return list(items)
+    return [items[round(i * (len(items) - 1) / (n - 1))] for i in range(n)] if n > 1 else [items[0]]

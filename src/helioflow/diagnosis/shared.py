@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from helioflow.data.hdf5 import read_dataset
+from helioflow.data.splits import evenly
 from helioflow.data.surfaces import read_heliostat
 from helioflow.device import resolve_device
 from helioflow.diagnosis.candidates import Candidate, candidates
@@ -64,7 +65,6 @@ from helioflow.models.physics_fit import (
 )
 from helioflow.physics.effects import REGISTRY, fitted_parameters
 from helioflow.physics.scene import Scene, dataset_scene
-from helioflow.workflow import evenly
 
 log = logging.getLogger(__name__)
 
@@ -224,7 +224,7 @@ def plant_shared(spec: dict, output_json: str | os.PathLike) -> dict:
     (workflow.SHARED_DEFAULTS), "device": ..., "plants": {plant: [{"heliostat", "dataset_path",
     "heliostat_path", "effects"}]}, "sizes": {plant: its number of heliostats}} (workflow.plant_shared_spec,
     which lists only the heliostats the fit takes; of a longer list it takes `settings["heliostats"]`
-    evenly, workflow.evenly)."""
+    evenly, data.splits.evenly)."""
     settings = spec["settings"]
     device = resolve_device(spec.get("device", "cpu"))
     out = {}
