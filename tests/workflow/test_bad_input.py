@@ -492,12 +492,9 @@ if __name__ == "__main__":
 
 # --- through snakemake ----------------------------------------------------------------------------
 
-from test_pipeline import BIN, _workdir, snakemake  # noqa: E402  (the pipeline tests' runner)
-
-needs_snakemake = pytest.mark.skipif(not (BIN / "snakemake").exists(), reason="snakemake is not installed in this env")
+from test_pipeline import _workdir, snakemake  # noqa: E402  (the pipeline tests' runner)
 
 
-@needs_snakemake
 @pytest.mark.parametrize("case", [pytest.param(c, id=c.bad_input, marks=_marks(c)) for c in CONFIG_CASES])
 def test_snakemake_dry_run_stops_with_the_one_line(case, tmp_path):
     workdir = _workdir(tmp_path / "run", _config(case.edit, case.field))
@@ -510,7 +507,6 @@ def test_snakemake_dry_run_stops_with_the_one_line(case, tmp_path):
     assert int(peak.read_text()) < 500 * 1024, f"snakemake -n peaked at {int(peak.read_text()) // 1024} MB"
 
 
-@needs_snakemake
 def test_a_results_path_that_is_a_file_stops_snakemake_with_one_line(tmp_path):
     workdir = _workdir(tmp_path / "run", _config(lambda c: None))
     (workdir / "results").write_text("notes")
@@ -521,7 +517,6 @@ def test_a_results_path_that_is_a_file_stops_snakemake_with_one_line(tmp_path):
         "file away or choose another experiment name"], proc.stderr
 
 
-@needs_snakemake
 def test_a_corrupt_dataset_stops_snakemake_before_it_deletes_the_models_made_from_it(tmp_path):
     workdir = _workdir(tmp_path / "run", _config(lambda c: None))
     model = workdir / "results/tiny/models/scan/cgan.pt"
@@ -538,7 +533,6 @@ def test_a_corrupt_dataset_stops_snakemake_before_it_deletes_the_models_made_fro
     assert model.is_file()
 
 
-@needs_snakemake
 def test_a_shell_word_in_a_requested_path_runs_nothing(tmp_path):
     """`snakemake "results/<exp>/surfaces/AA39;touch PWNED;x.h5"`: no rule makes that name."""
     config = _config(_paint())
@@ -566,7 +560,6 @@ SAME_RESULTS = ["results/tiny/models/scan/cgan.pt", "results/tiny/models/scan/ne
                 "results/tiny/metrics/scan/cgan.csv"]
 
 
-@needs_snakemake
 @pytest.mark.slow
 def test_one_job_at_a_time_and_two_at_once_give_the_same_files(tmp_path):
     """-j1 and -j2 on the same config: bit-identical model files and metrics (each job computes with

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from test_pipeline import BIN, _scheduled, _workdir, snakemake
+from test_pipeline import _scheduled, _workdir, snakemake
 
 from helioflow.config import load_config, validate_config
 from helioflow.errors import ConfigError
@@ -229,11 +229,6 @@ def test_the_equivalent_sun_is_within_the_default_calibration_scan(default):
             assert low <= math.degrees(el) <= high
 
 
-needs_snakemake = pytest.mark.skipif(
-    not (BIN / "snakemake").exists(), reason="snakemake is not installed in this env"
-)
-
-
 def _field_workdir(path: Path) -> Path:
     workdir = _workdir(path)
     for name in ("tiny_config.yaml", "tiny_field.yaml"):
@@ -241,7 +236,6 @@ def _field_workdir(path: Path) -> Path:
     return workdir
 
 
-@needs_snakemake
 def test_the_dag_builds_the_measured_heliostats_through_the_existing_rules(tmp_path):
     workdir = _field_workdir(tmp_path / "dry")
     proc = snakemake(
@@ -266,7 +260,6 @@ def test_the_dag_builds_the_measured_heliostats_through_the_existing_rules(tmp_p
     }
 
 
-@needs_snakemake
 @pytest.mark.slow
 def test_compose_field_runs_in_the_dag(tmp_path):
     workdir = _field_workdir(tmp_path / "run")

@@ -6,8 +6,7 @@ import json
 import shutil
 
 import numpy as np
-import pytest
-from test_pipeline import BIN, REPO, _tiny, _workdir, snakemake
+from test_pipeline import REPO, _tiny, _workdir, snakemake
 
 from helioflow.data.hdf5 import CalibrationDataset, read_dataset
 from helioflow.diagnosis.diagnose import OWN_HOLDOUT_EVERY, scoring_split
@@ -31,7 +30,6 @@ def test_the_diagnosis_scores_on_the_held_out_splits_or_holds_out_training_image
     assert fit.tolist() == scored.tolist() == [0] and "training error" in info["note"]
 
 
-@pytest.mark.skipif(not (BIN / "snakemake").exists(), reason="snakemake is not installed in this env")
 def test_a_paint_and_an_images_dataset_without_held_out_images_run_all_to_the_end(tmp_path):
     config = _tiny()
     config["datasets"] = {

@@ -18,8 +18,6 @@ TINY = Path(__file__).resolve().parent / "tiny_config.yaml"
 BIN = Path(sys.executable).parent  # the venv's bin: snakemake and the `helioflow` CLI the rules call
 ACCEPTED_LINTS = {"Specify a conda environment or container for each rule."}
 
-pytestmark = pytest.mark.skipif(not (BIN / "snakemake").exists(),
-                                reason="snakemake is not installed in this env")
 
 
 def _workdir(path: Path, config: dict | None = None) -> Path:
