@@ -873,14 +873,23 @@ def plant_shared_settings(config: dict) -> dict | None:
     """The plant fit's settings (config plant.shared over SHARED_DEFAULTS), None when the config has
     no plant entry or sets `plant.shared: false` (each heliostat fitted alone)."""
     shared = (config.get("plant") or {}).get("shared", {})
-    if not plant_groups(config) or shared is False:
+    if not _plant_fit_wanted(config) or not plant_groups(config):
         return None
     return {**SHARED_DEFAULTS, **(copy.deepcopy(shared) if isinstance(shared, dict) else {})}
 
 
+def _plant_fit_wanted(config: dict) -> bool:
+    """Whether a plant's heliostats are fitted with the plant fit (`plant.shared` is not false)."""
+    return (config.get("plant") or {}).get("shared", {}) is not False
+
+
+def _shared_file(config: dict) -> str:
+    return f"{results_dir(config)}/plant/shared.json"
+
+
 def plant_shared_path(config: dict) -> list[str]:
     """plant/shared.json (rule plant_shared) when the plant fit runs (plant_shared_settings)."""
-    return [f"{results_dir(config)}/plant/shared.json"] if plant_shared_settings(config) is not None else []
+    return [_shared_file(config)] if plant_shared_settings(config) is not None else []
 
 
 def plant_shared_spec(config: dict) -> dict:
@@ -915,11 +924,11 @@ def shared_of(config: dict, dataset: str) -> dict | None:
     the plant fit sets (rules train and diagnose take them from there: the key `shared` of their
     specs, absent for every other dataset), else None."""
     ds = config["datasets"][dataset]
-    # a plant heliostat's dataset: the plant fit runs unless `plant.shared: false` (plant_shared_settings),
+    # a plant heliostat's dataset: its plant exists, so the fit runs where wanted (plant_shared_settings),
     # decided without going over every dataset (snakemake asks for every job)
-    if PLANT_KEY not in ds or FOLD_KEY in ds or (config.get("plant") or {}).get("shared", {}) is False:
+    if PLANT_KEY not in ds or FOLD_KEY in ds or not _plant_fit_wanted(config):
         return None
-    return {"path": f"{results_dir(config)}/plant/shared.json", "plant": ds[PLANT_KEY]}
+    return {"path": _shared_file(config), "plant": ds[PLANT_KEY]}
 
 
 def shared_inputs(config: dict, dataset: str) -> list[str]:
@@ -938,14 +947,12 @@ PLANT_FLUX_DEFAULTS = {
 
 
 def plant_flux_settings(config: dict) -> dict | None:
-    """The plant flux maps' settings (config plant.flux over PLANT_FLUX_DEFAULTS; an aim without kind
-    aims at the centre), None when there is no plant table (plant_table_path) or `plant.flux: false`."""
+    """The plant flux maps' settings (config plant.flux, validated: its aim has the schema's defaults,
+    over PLANT_FLUX_DEFAULTS), None when there is no plant table (plant_table_path) or `plant.flux: false`."""
     flux = (config.get("plant") or {}).get("flux", {})
     if not plant_table_path(config) or flux is False:
         return None
-    settings = {**copy.deepcopy(PLANT_FLUX_DEFAULTS), **(copy.deepcopy(flux) if isinstance(flux, dict) else {})}
-    settings["aim"] = {"kind": "center", "spread": 0.5, "levels": 3, **settings["aim"]}
-    return settings
+    return {**copy.deepcopy(PLANT_FLUX_DEFAULTS), **(copy.deepcopy(flux) if isinstance(flux, dict) else {})}
 
 
 def plant_flux_paths(config: dict, kind: str = "png") -> list[str]:

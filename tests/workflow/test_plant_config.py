@@ -152,9 +152,10 @@ def test_the_plant_flux_map_takes_every_heliostat_with_geometry_and_each_calibra
     assert inputs[0] == str(PAINT / "tower-measurements.json")
     assert [Path(p).parent.name for p in inputs[1:5]] == ["AA28", "AA31", "AA39", "AC43"]  # AA28 raytraced ideal
     assert plant_flux_paths(config, "json") == [f"{r}/plant/flux/jul.json"]
-    config["plant"] = {"flux": {"sun": {"dawn": {"azimuth_deg": 90.0, "elevation_deg": 5.0}},
-                                "aim": {"kind": "vertical"}}}
-    settings = plant_flux_spec(config)["jul"]["settings"]
+    raw = _config({"heliostats": ["AA31", "AA39"]})
+    raw.update(networks={"drt": {}}, diagnosis={}, plant={"flux": {
+        "sun": {"dawn": {"azimuth_deg": 90.0, "elevation_deg": 5.0}}, "aim": {"kind": "vertical"}}})
+    settings = plant_flux_spec(expand_config(validate_config(raw)))["jul"]["settings"]  # the aim's defaults: schema
     assert list(settings["sun"]) == ["dawn"] and settings["aim"] == {"kind": "vertical", "spread": 0.5, "levels": 3}
     config["plant"] = {"flux": False}
     assert plant_flux_spec(config) == {} and plant_flux_paths(config) == []

@@ -184,12 +184,16 @@ class Tower:
         if name not in self.planar_targets():
             raise DataError(f"{used_in}: target_name {name!r} is not a planar target in {self.path}; "
                             f"known: {', '.join(self.planar_targets())}")
-        corners = {c: self.enu(field(self.data, self.path, f"{name}.coordinates.{c}", "vec3"))
+        aim = self.enu(field(self.data, self.path, f"{name}.coordinates.center", "vec3"))
+        return replace(self._plane(name, ""), aim=aim)
+
+    def _plane(self, name: str, prefix: str) -> PlaneTarget:
+        """The plane through the corners `<name>.coordinates.<prefix><corner>` (CORNERS), its normal
+        towards the field (`<name>.normal_vector`)."""
+        corners = {c: self.enu(field(self.data, self.path, f"{name}.coordinates.{prefix}{c}", "vec3"))
                    for c in CORNERS}
         normal_hint = np.asarray(field(self.data, self.path, f"{name}.normal_vector", "vec3"), dtype=float)
-        plane = plane_from_corners(name, corners, normal_hint)
-        aim = self.enu(field(self.data, self.path, f"{name}.coordinates.center", "vec3"))
-        return replace(plane, aim=aim)
+        return plane_from_corners(name, corners, normal_hint)
 
 
     def receiver(self, name: str) -> PlaneTarget:
@@ -202,11 +206,7 @@ class Tower:
             known = sorted(k for k, v in self.data.items() if isinstance(v, dict) and "coordinates" in v)
             raise DataError(f"{self.path}: no entry {name!r} to draw the flux map on; entries with coordinates: "
                             f"{', '.join(known)}")
-        prefix = "" if entry.get("type") == "planar" else "receiver_outer_"
-        corners = {c: self.enu(field(self.data, self.path, f"{name}.coordinates.{prefix}{c}", "vec3"))
-                   for c in CORNERS}
-        normal_hint = np.asarray(field(self.data, self.path, f"{name}.normal_vector", "vec3"), dtype=float)
-        return plane_from_corners(name, corners, normal_hint)
+        return self._plane(name, "" if entry.get("type") == "planar" else "receiver_outer_")
 
 
 def plane_from_corners(name: str, corners: dict[str, np.ndarray], normal_hint: np.ndarray) -> PlaneTarget:

@@ -199,9 +199,9 @@ def _metrics(scene: Scene, settings: dict, traced: dict[str, FieldFlux], left_ou
                     "shift_m": None if math.isnan(shift) else round(shift, 4),
                     "on_receiver_ideal_kw": float(pi) / 1e3, "on_receiver_calibrated_kw": float(pc) / 1e3}
         rows[point] = row
-    shifts = [h["shift_m"] for r in rows.values() for h in r["heliostats"].values() if h["shift_m"] is not None]
-    worst = max(((h["shift_m"] or 0.0, name, p) for p, r in rows.items() for name, h in r["heliostats"].items()),
-                default=None)
+    moved = [(h["shift_m"], name, p) for p, r in rows.items() for name, h in r["heliostats"].items()
+             if h["shift_m"] is not None]  # a spot that misses the receiver has no centroid
+    worst = max(moved, default=None)
     return {
         "heliostats": len(scene.names),
         "calibrated": [scene.names[k] for k in scene.measured],
@@ -209,7 +209,7 @@ def _metrics(scene: Scene, settings: dict, traced: dict[str, FieldFlux], left_ou
         "left_out": left_out,
         "summary": {"ideal_against_calibrated": mean_metrics([r["ideal"] for r in rows.values()]),
                     "calibrated": mean_metrics([r["calibrated"] for r in rows.values()]),
-                    "mean_spot_shift_m": float(np.mean(shifts)) if shifts else None,
+                    "mean_spot_shift_m": float(np.mean([m[0] for m in moved])) if moved else None,
                     "largest_spot_shift": None if worst is None else
                     {"heliostat": worst[1], "design_point": worst[2], "shift_m": worst[0]}},
         "design_points": rows,

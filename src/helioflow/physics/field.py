@@ -492,9 +492,10 @@ class _Spots:
 def _optics_groups(optics: Optics, slope_error: Tensor | None) -> list[tuple[Tensor | slice, Optics]]:
     """[(members: (B,) bool or slice(None) for all, their optics)]: heliostats with the same slope
     error share a footprint; slope_error (B,) rad, each heliostat's own, or None: all take `optics`."""
-    if slope_error is None:
-        return [(slice(None), optics)]
-    return [(slope_error == value, replace(optics, slope_error=float(value))) for value in slope_error.unique()]
+    values = None if slope_error is None else slope_error.unique()
+    if values is None or len(values) == 1:  # one footprint for all: no masked copies
+        return [(slice(None), optics if values is None else replace(optics, slope_error=float(values[0])))]
+    return [(slope_error == value, replace(optics, slope_error=float(value))) for value in values]
 
 
 def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics: Optics,
@@ -532,12 +533,18 @@ def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics:
     # Deposit: padded grid coordinates, (1, 1) = centre of the first cell.
     cells = deposit((x - x0) / kx + 0.5, (y - y0) / ky + 0.5, power, (size, size))  # (B, C, C)
     cell = torch.cat((kx * pw, ky * ph), -1)  # (B, 2) cell width, height (m)
-    flux = torch.empty_like(cells)
-    for m, own in groups:  # m: the heliostats of one slope error
+
+    def spread(m, own: Optics) -> Tensor:  # the heliostats m of one slope error
         if own.sun.kind == "point" and own.slope_error == 0:
-            flux[m] = cells[m] / (cell[m, 0] * cell[m, 1])[:, None, None]  # the beam does not spread
-        else:
-            flux[m] = _convolve_footprint(cells[m], unit[m], path[m], cell[m], reach[m], own)
+            return cells[m] / (cell[m, 0] * cell[m, 1])[:, None, None]  # the beam does not spread
+        return _convolve_footprint(cells[m], unit[m], path[m], cell[m], reach[m], own)
+
+    if len(groups) == 1:
+        flux = spread(*groups[0])
+    else:
+        flux = torch.empty_like(cells)
+        for m, own in groups:
+            flux[m] = spread(m, own)
     return _Spots(flux, _interpolation(rows, y0, ky, size), _interpolation(cols, x0, kx, size))
 
 
