@@ -79,7 +79,9 @@ def test_energy_on_target_equals_the_intercepted_sunlight(splat, sun):
     """sum(image) * pixel area = dni * mirror area * cos(incidence) * reflectivity when nothing spills.
 
     A flat ideal heliostat has one incidence angle, so the bilinear power is exact (each ray carries
-    a fixed share; only spill could change it) and the kernel footprints are normalised: 1e-9."""
+    a fixed share; only spill could change it) and the kernel footprints are normalised: 1e-9. The
+    pixel average's negative side taps leave a little negative flux beside a sharp edge (the point
+    sun's, the pillbox's): under 1 % of the peak."""
     h = make_heliostat(2, 2, 1.0, 1.0, 0.02)
     tg = _target(50.0, 8.0, 64)  # spot: mirror ~2 m + Buie aureole (43.6 mrad) ~2.2 m either side
     az, el = math.radians(40.0), math.radians(45.0)  # oblique: incidence ~ 17 deg
@@ -90,7 +92,7 @@ def test_energy_on_target_equals_the_intercepted_sunlight(splat, sun):
     expected = 900.0 * 4.0 * cos_i * 0.93
     assert img.sum().item() * tg.pixel_area == pytest.approx(expected, rel=1e-9)
     border = torch.cat((img[0], img[-1], img[:, 0], img[:, -1]))
-    assert img.min() > -1e-12 * img.max() and border.abs().max() < 1e-12 * img.max()  # FFT round-off only
+    assert img.min() > -0.01 * img.max() and border.abs().max() < 1e-12 * img.max()
 
 
 def test_energy_of_a_curved_deformed_heliostat():
@@ -169,8 +171,8 @@ def test_gaussian_sun_spot_width(splat, slope_mrad, size, res):
     per-axis spot std = D sqrt(sigma^2 + 4 sigma_s^2). Derivation: a sun deviation turns the
     reflected ray by the same angle; a normal tilt b turns it by 2 b in the plane of incidence and
     by 2 b cos(theta_i) out of it, ~2 b at the 2 deg incidence here. The mirror's own extent adds
-    a^2/12 (uniform square) and the pixel tent pixel^2/6 to the variance; both are removed. With
-    1e6 rays the std is known to ~0.1 %; tolerance 1 %."""
+    a^2/12 (uniform square) and the camera's pixel average pixel^2/12 to the variance; both are
+    removed. With 1e6 rays the std is known to ~0.1 %; tolerance 1 %."""
     a, distance, sigma, sigma_s = 0.1, 100.0, 2.51e-3, slope_mrad * 1e-3
     h = make_heliostat(1, 1, a, a, 0.0)
     tg = _target(distance, size, res)
@@ -180,8 +182,27 @@ def test_gaussian_sun_spot_width(splat, slope_mrad, size, res):
     pixel = tg.pixel_size[0]
     expected = distance * math.sqrt(sigma**2 + 4 * sigma_s**2)
     for var in (vu, vv):
-        assert math.sqrt(var - a**2 / 12 - pixel**2 / 6) == pytest.approx(expected, rel=0.01)
+        assert math.sqrt(var - a**2 / 12 - pixel**2 / 12) == pytest.approx(expected, rel=0.01)
     assert abs(cu) < 0.05 * pixel and abs(cv) < 0.05 * pixel
+
+
+@pytest.mark.parametrize("splat", ["bilinear", "kernel"])
+@pytest.mark.parametrize("pixel", [0.1, 0.15, 0.2])
+def test_a_spot_a_pixel_or_two_wide_has_the_variance_a_camera_measures(splat, pixel):
+    """The camera averages the flux over each pixel (variance pixel^2/12 per axis beyond the flux's
+    own). A flat 0.6 m mirror at 100 m under a gaussian sun, no slope error: spots of 1.4-2.9 pixels
+    std, where the splats' own blur (a tent, pixel^2/6, and the kernel's footprint average) would add
+    0.08-0.15 pixel^2 more; the excess variance is within 0.02 pixel^2 of pixel^2/12 (the Monte
+    Carlo's 4e6 rays know it to ~0.01, the kernel's lattice of 16 x 16 central rays lacks their cells'
+    own extent, ~0.01 at 0.1 m pixels)."""
+    a, distance, sigma = 0.6, 100.0, 2.51e-3
+    h = make_heliostat(1, 1, a, a, 0.0)
+    tg = _target(distance, 64 * pixel, 64)
+    img = _image(h, tg, *NEAR_NORMAL, Optics(SunShape("gaussian", sigma_mrad=2.51)), rays=4_000_000, splat=splat,
+                 cells_per_side=16, seed=0)
+    _, _, vu, vv = _moments(img, tg)
+    for var in (vu, vv):
+        assert (var - (distance * sigma) ** 2 - a**2 / 12) / pixel**2 == pytest.approx(1 / 12, abs=0.02)
 
 
 @pytest.mark.parametrize(
@@ -207,8 +228,8 @@ def test_slope_error_blur_is_smaller_out_of_the_plane_of_incidence(splat):
     img = _image(h, tg, az, el, optics, rays=1_000_000, splat=splat, cells_per_side=4, seed=0)
     _, _, vu, vv = _moments(img, tg)
     pixel = tg.pixel_size[0]
-    across = math.sqrt(vu - a**2 / 12 - pixel**2 / 6)
-    along = math.sqrt(vv - (a * cos_i) ** 2 / 12 - pixel**2 / 6)
+    across = math.sqrt(vu - a**2 / 12 - pixel**2 / 12)
+    along = math.sqrt(vv - (a * cos_i) ** 2 / 12 - pixel**2 / 12)
     assert along == pytest.approx(distance * math.sqrt(sigma**2 + 4 * sigma_s**2), rel=0.01)
     assert across == pytest.approx(distance * math.sqrt(sigma**2 + 4 * sigma_s**2 * cos_i**2), rel=0.01)
 
