@@ -184,13 +184,7 @@ def test_gaussian_sun_spot_width(splat, slope_mrad, size, res):
     assert abs(cu) < 0.05 * pixel and abs(cv) < 0.05 * pixel
 
 
-@pytest.mark.parametrize(
-    "splat",
-    ["bilinear",
-     pytest.param("kernel", marks=pytest.mark.xfail(strict=True, reason=(
-         "documented approximation: kernel splatting blurs by the slope error isotropically (2 sigma_s), "
-         "ignoring the cos(theta_i) factor out of the plane of incidence")))],
-)
+@pytest.mark.parametrize("splat", ["bilinear", "kernel"])
 def test_slope_error_blur_is_smaller_out_of_the_plane_of_incidence(splat):
     """At oblique incidence theta_i a normal tilt b turns the reflected ray by 2 b in the plane of
     incidence but by 2 b cos(theta_i) across it. Sun straight south at 80 deg, target 30 deg up

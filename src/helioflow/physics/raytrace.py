@@ -41,6 +41,7 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor
 
+from helioflow.physics import slope
 from helioflow.physics.geometry import normalize, plane_axes, reflect, sun_vector
 from helioflow.physics.heliostat import Heliostat, orientation, sample_surface
 from helioflow.physics.sun import SunShape, radial_density, sample_deviations, support_radius
@@ -379,10 +380,11 @@ def _splat_kernel(c: _Rays, target: Target, optics: Optics, n_facets: int) -> Te
     """
     n_sun = c.power.shape[0]
     col, row, power, unit, path = central_hits(c, padded_canvas(target))
-    unit, path = mean_rays(unit, path, power, n_facets)
+    unit, path, spread = mean_rays(unit, path, power, n_facets, tilt_spread(c))
     groups = n_sun * n_facets
-    flux = splat_footprints(col.reshape(groups, -1), row.reshape(groups, -1), power.reshape(groups, -1),
-                            unit, path, target, optics)
+    col, row, power = (v.reshape(groups, -1) for v in (col, row, power))
+    extent = cell_extent(torch.stack((row, col), -1), power / power.sum(-1, keepdim=True).clamp_min(1e-30), 1)
+    flux = splat_footprints(col, row, power, unit, path, spread, extent, target, optics)
     return flux.reshape(n_sun, n_facets, *target.resolution).sum(1)
 
 
@@ -409,11 +411,13 @@ def padded_canvas(target: Target) -> Target:
                    height=target.height * (rows + 2 * pad_r) / rows, resolution=(rows + 2 * pad_r, cols + 2 * pad_c))
 
 
-def mean_rays(unit: Tensor, path: Tensor, power: Tensor, n_groups: int) -> tuple[Tensor, Tensor]:
+def mean_rays(unit: Tensor, path: Tensor, power: Tensor, n_groups: int, spread: Tensor
+              ) -> tuple[Tensor, Tensor, Tensor]:
     """The power-weighted mean ray of each group of points: unit (S, P, 3) central-ray directions on
-    the target's (normal, right, up), path (S, P) lengths (m) and power (S, P) (W), the P points in
-    `n_groups` equal consecutive groups -> (S * n_groups, 3) unit directions, (S * n_groups,) paths.
-    A group without power (all its points masked or facing away) gets its points' plain mean."""
+    the target's (normal, right, up), path (S, P) lengths (m), power (S, P) (W) and spread (S, P, 3, 3)
+    (`tilt_spread`), the P points in `n_groups` equal consecutive groups -> (S * n_groups, 3) unit
+    directions, (S * n_groups,) paths, (S * n_groups, 3, 3) mean spreads. A group without power (all
+    its points masked or facing away) gets its points' plain mean."""
     n_sun = unit.shape[0]
     weight = power.reshape(n_sun, n_groups, -1)
     dark = weight.sum(-1, keepdim=True) <= 0.0  # a group that sends nothing (masked): its plain mean ray
@@ -421,20 +425,53 @@ def mean_rays(unit: Tensor, path: Tensor, power: Tensor, n_groups: int) -> tuple
     weight = weight / weight.sum(-1, keepdim=True)
     mean = (weight[..., None] * unit.reshape(n_sun, n_groups, -1, 3)).sum(2)
     mean_path = (weight * path.reshape(n_sun, n_groups, -1)).sum(-1)
-    return normalize(mean).reshape(-1, 3), mean_path.reshape(-1)
+    mean_spread = (weight[..., None, None] * spread.reshape(n_sun, n_groups, -1, 3, 3)).sum(2)
+    return normalize(mean).reshape(-1, 3), mean_path.reshape(-1), mean_spread.reshape(-1, 3, 3)
 
 
-def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path: Tensor, target: Target,
-                     optics: Optics) -> Tensor:
+def cell_extent(hits: Tensor, weight: Tensor, n_grids: int) -> Tensor:
+    """(B, 2, 2) covariance that the cells add to a spot, in the units of `hits`: each central ray
+    stands for its whole cell, whose rays land spread by where in the cell they leave it. To first
+    order a point (u, v) cells from the centre (uniform in +-1/2) lands at hit + u d_1 + v d_2, d_k the
+    change of the hit from one cell to the next along the facet's grid (central differences of the
+    central hits: this holds the cell's size, its curvature and focusing, and the projection), so a
+    cell adds (d_1 d_1^T + d_2 d_2^T) / 12; averaged over the cells by `weight`.
+
+    Args:
+        hits: (B, P, 2) the central rays' hits on the target plane (any two axes, any unit).
+        weight: (B, P) their shares of the power (summing to 1 over P).
+        n_grids: the P cells are n_grids square grids (facets), one after the other
+            (heliostat.sample_surface).
+    """
+    side = math.isqrt(hits.shape[1] // n_grids)
+    if side < 2:
+        return hits.new_zeros(len(hits), 2, 2)
+    steps = torch.gradient(hits.reshape(len(hits), n_grids, side, side, 2), dim=(2, 3))  # d_1, d_2
+    cell = sum(d[..., :, None] * d[..., None, :] for d in steps) / 12  # (B, F, G, G, 2, 2)
+    return (weight[..., None, None] * cell.reshape(len(hits), -1, 2, 2)).sum(1)
+
+
+def tilt_spread(c: _Rays) -> Tensor:
+    """(S, P, 3, 3) slope.tilt_covariance of every central ray on the target's (normal, right, up),
+    from the reflection law's derivatives g_1, g_2 that the rays carry."""
+    g = c.along[:, :, 3:5, :]  # (S, P, 2, 3)
+    return torch.einsum("spki,spkj->spij", g, g)
+
+
+def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path: Tensor, tilt: Tensor,
+                     extent: Tensor, target: Target, optics: Optics) -> Tensor:
     """Central rays of B groups deposited bilinearly on the padded canvas (`padded_canvas`) and
     convolved with the footprint of each group's mean ray: (B, H, W) tent-averaged power per
-    pixel (W) of the target.
+    pixel (W) of the target. The slope error blurs less across the plane of incidence
+    (physics/slope.py): the footprint holds its isotropic part; a Gaussian on the spectrum adds the
+    rest and the extent of the cells that the central rays stand for (`cell_extent`).
 
     Args:
         col, row: (B, N) padded pixel coordinates on the canvas (see `deposit`).
         power: (B, N) power of each ray (W).
-        unit, path: (B, 3) mean ray direction on the target's (normal, right, up) and (B,) its
-            length (m) (`mean_rays`).
+        unit, path, tilt: (B, 3) mean ray direction on the target's (normal, right, up), (B,) its
+            length (m) and (B, 3, 3) the rays' mean slope.tilt_covariance (`mean_rays`).
+        extent: (B, 2, 2) the cells' covariance in (row, column) pixels (`cell_extent`).
     """
     rows, cols = target.resolution
     pad_r, pad_c = rows // 2, cols // 2
@@ -450,8 +487,9 @@ def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path
     jr, jc = min(rows + pad_r, math.ceil(widest / ph) + 1), min(cols + pad_c, math.ceil(widest / pw) + 1)
     mr, mc = min(pad_r, jr + 1), min(pad_c, jc + 1)
     deposited = deposit(col - (pad_c - mc), row - (pad_r - mr), power, (rows + 2 * mr, cols + 2 * mc))
-    density = density_lookup(optics.sun, float(optics.slope_error))
-    kernel = footprint(density, unit, path, unit.new_tensor(target.pixel_size).expand(len(unit), 2), (jr, jc))
+    isotropic, remainder = slope.split(tilt, unit, float(optics.slope_error))
+    pixel = unit.new_tensor(target.pixel_size).expand(len(unit), 2)
+    kernel = footprint(density_lookup(optics.sun, isotropic), unit, path, pixel, (jr, jc))
     # A footprint that lies wholly inside the kernel window carries exactly the ray's power;
     # renormalising removes the lattice error of sampling a hard-edged sun disc on pixels.
     inside = spread < min(jr * ph, jc * pw)
@@ -459,11 +497,12 @@ def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path
     kernel = torch.where(inside[:, None, None], kernel / total[:, None, None].clamp_min(1e-30), kernel)
     # (B, rows + 2 mr + 2 jr, cols + 2 mc + 2 jc) centred on the canvas; both factors are >= 0, so
     # the clamp only removes the FFT's round-off (which would otherwise leave tiny negative flux).
-    flux = convolve(deposited, kernel).clamp_min(0.0)
+    blur = extent + slope.in_cells(slope.on_plane(remainder, unit, path), pixel)
+    flux = convolve(deposited, kernel, blur).clamp_min(0.0)
     return flux[:, jr + mr : jr + mr + rows, jc + mc : jc + mc + cols] * target.pixel_area
 
 
-@functools.lru_cache(maxsize=8)
+@functools.lru_cache(maxsize=64)
 def _density_table(sun: SunShape, slope_error: float, n: int = 8192) -> tuple[Tensor, float]:
     """(n,) float64 values of the beam-spread density (1/sr) on a uniform angle grid from 0 to the
     support radius, and the grid step (rad); cached per sun shape and slope error."""
@@ -522,11 +561,15 @@ def footprint(density, unit: Tensor, path: Tensor, pixel: Tensor, reach: tuple[i
     return torch.cat((top, top[:, :-1].flip(-2, -1)), dim=-2)
 
 
-def convolve(images: Tensor, kernels: Tensor) -> Tensor:
-    """Full linear convolution of (B, H, W) images with (B, Hk, Wk) kernels via FFT: (B, H+Hk-1, W+Wk-1)."""
+def convolve(images: Tensor, kernels: Tensor, blur: Tensor | None = None) -> Tensor:
+    """Full linear convolution of (B, H, W) images with (B, Hk, Wk) kernels via FFT: (B, H+Hk-1, W+Wk-1);
+    with blur (B, 2, 2), also with a Gaussian of that covariance in (row, column) pixels (kept within
+    the kernels' extent: its tails beyond wrap around)."""
     full = (images.shape[-2] + kernels.shape[-2] - 1, images.shape[-1] + kernels.shape[-1] - 1)
     size = tuple(_fft_size(n) for n in full)
     spectrum = torch.fft.rfft2(images, s=size) * torch.fft.rfft2(kernels, s=size)
+    if blur is not None:
+        spectrum = spectrum * slope.gaussian_spectrum(blur, size)
     return torch.fft.irfft2(spectrum, s=size)[..., : full[0], : full[1]]
 
 
