@@ -72,6 +72,7 @@ from helioflow.physics.raytrace import (
     FOOTPRINT_SUPERSAMPLING,
     Optics,
     _fft_size,
+    blurred,
     cell_extent,
     density_lookup,
     deposit,
@@ -613,14 +614,12 @@ def _convolve_footprint(cells: Tensor, unit: Tensor, path: Tensor, tilt: Tensor,
     for rows, q in ((smooth, 1), (~smooth, FOOTPRINT_SUPERSAMPLING)):
         if rows.any():
             kernel[rows] = footprint(density, unit[rows], path[rows], cell[rows], (reach_cells, reach_cells), q)
+    kernel = blurred(kernel, slope.in_cells(extent + slope.on_plane(remainder, unit, path), cell))
     # A footprint wholly inside its grid carries exactly the ray's power (cf. raytrace).
     inside = reach < reach_cells * cell.amin(-1)
     norm = kernel.sum((-2, -1)) * cell[:, 0] * cell[:, 1]
     kernel = torch.where(inside[:, None, None], kernel / norm[:, None, None].clamp_min(1e-30), kernel)
     period = (_fft_size(size + reach_cells),) * 2
-    spectrum = torch.fft.rfft2(cells, s=period) * torch.fft.rfft2(kernel, s=period)
-    blur = extent + slope.on_plane(remainder, unit, path)  # (B, 2, 2) m^2
-    spectrum = spectrum * slope.gaussian_spectrum(slope.in_cells(blur, cell), period)
-    flux = torch.fft.irfft2(spectrum, s=period)
+    flux = torch.fft.irfft2(torch.fft.rfft2(cells, s=period) * torch.fft.rfft2(kernel, s=period), s=period)
     crop = slice(reach_cells, reach_cells + size)
     return flux[:, crop, crop].clamp_min(0.0)  # both factors are >= 0: the clamp removes FFT round-off

@@ -490,6 +490,7 @@ def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path
     isotropic, remainder = slope.split(tilt, unit, float(optics.slope_error))
     pixel = unit.new_tensor(target.pixel_size).expand(len(unit), 2)
     kernel = footprint(density_lookup(optics.sun, isotropic), unit, path, pixel, (jr, jc))
+    kernel = blurred(kernel, extent + slope.in_cells(slope.on_plane(remainder, unit, path), pixel))
     # A footprint that lies wholly inside the kernel window carries exactly the ray's power;
     # renormalising removes the lattice error of sampling a hard-edged sun disc on pixels.
     inside = spread < min(jr * ph, jc * pw)
@@ -497,8 +498,7 @@ def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path
     kernel = torch.where(inside[:, None, None], kernel / total[:, None, None].clamp_min(1e-30), kernel)
     # (B, rows + 2 mr + 2 jr, cols + 2 mc + 2 jc) centred on the canvas; both factors are >= 0, so
     # the clamp only removes the FFT's round-off (which would otherwise leave tiny negative flux).
-    blur = extent + slope.in_cells(slope.on_plane(remainder, unit, path), pixel)
-    flux = convolve(deposited, kernel, blur).clamp_min(0.0)
+    flux = convolve(deposited, kernel).clamp_min(0.0)
     return flux[:, jr + mr : jr + mr + rows, jc + mc : jc + mc + cols] * target.pixel_area
 
 
@@ -561,16 +561,30 @@ def footprint(density, unit: Tensor, path: Tensor, pixel: Tensor, reach: tuple[i
     return torch.cat((top, top[:, :-1].flip(-2, -1)), dim=-2)
 
 
-def convolve(images: Tensor, kernels: Tensor, blur: Tensor | None = None) -> Tensor:
-    """Full linear convolution of (B, H, W) images with (B, Hk, Wk) kernels via FFT: (B, H+Hk-1, W+Wk-1);
-    with blur (B, 2, 2), also with a Gaussian of that covariance in (row, column) pixels (kept within
-    the kernels' extent: its tails beyond wrap around)."""
+def convolve(images: Tensor, kernels: Tensor) -> Tensor:
+    """Full linear convolution of (B, H, W) images with (B, Hk, Wk) kernels via FFT: (B, H+Hk-1, W+Wk-1)."""
     full = (images.shape[-2] + kernels.shape[-2] - 1, images.shape[-1] + kernels.shape[-1] - 1)
     size = tuple(_fft_size(n) for n in full)
     spectrum = torch.fft.rfft2(images, s=size) * torch.fft.rfft2(kernels, s=size)
-    if blur is not None:
-        spectrum = spectrum * slope.gaussian_spectrum(blur, size)
     return torch.fft.irfft2(spectrum, s=size)[..., : full[0], : full[1]]
+
+
+def blurred(kernels: Tensor, covariance: Tensor) -> Tensor:
+    """(B, Hk, Wk) kernels convolved with Gaussians of covariance (B, 2, 2) in (row, column) cells,
+    same shape (what the blur moves beyond the kernels' extent is dropped). The Gaussians are sampled
+    at the cell centres and normalised, so they are never negative and keep the power (a Gaussian
+    much narrower than a cell stays a single cell)."""
+    reach = math.ceil(4 * math.sqrt(float(covariance.diagonal(dim1=-2, dim2=-1).max().clamp_min(0.0))))
+    if reach == 0:
+        return kernels
+    offset = torch.arange(-reach, reach + 1, dtype=kernels.dtype, device=kernels.device)
+    d = torch.stack(torch.meshgrid(offset, offset, indexing="ij"), -1)  # (K, K, 2) row, column
+    precision = torch.linalg.pinv(covariance.to(kernels.dtype), hermitian=True)  # (B, 2, 2)
+    exponent = torch.einsum("rci,bij,rcj->brc", d, precision, d)
+    gaussian = torch.exp(-0.5 * exponent)
+    gaussian = gaussian / gaussian.sum((-2, -1), keepdim=True)
+    full = convolve(kernels, gaussian).clamp_min(0.0)  # the clamp removes the FFT's round-off
+    return full[:, reach:reach + kernels.shape[-2], reach:reach + kernels.shape[-1]]
 
 
 def _fft_size(n: int) -> int:

@@ -12,22 +12,21 @@ i_p = i - (i.n) n; G has eigenvalues 4 (in the plane of incidence), 4 cos^2(thet
 
 The kernel tracers convolve deposits with a footprint whose angular density, the sun shape convolved
 with an isotropic Gaussian, is tabulated radially (sun.radial_density). So the slope error is split
-(`split`): an isotropic part sigma c, c the smallest cos(theta_i) of the batch rounded down to a
-multiple of 1/32 (so that the tables are reused), goes into the table, and the remainder
-sigma^2 G - 4 sigma^2 c^2 (I - r r^T), positive semi-definite, is a Gaussian applied to the
-convolution's spectrum (`gaussian_spectrum`) after mapping it onto the target plane
-(`on_plane`). For a Gaussian slope error this is exact; each group of rays takes the mean G of its
-rays, as it takes their mean ray for the footprint.
+(`split`): an isotropic part SPLIT_COS sigma goes into the table (the same for every ray, so that a
+result does not depend on how rays are batched), and the remainder sigma^2 (G - 4 SPLIT_COS^2
+(I - r r^T)), positive semi-definite for theta_i <= 60 deg (beyond, its negative part is dropped:
+the blur across the plane of incidence stays that of 60 deg), is a Gaussian by which the footprint
+is blurred (raytrace.blurred) after mapping it onto the target plane (`on_plane`). For a Gaussian slope
+error this is exact; each group of rays takes the mean G of its rays, as it takes their mean ray
+for the footprint.
 """
 
 from __future__ import annotations
 
-import math
-
 import torch
 from torch import Tensor
 
-COS_STEP = 1.0 / 32.0  # the isotropic part's cos(theta_i) is rounded down to a multiple of this
+SPLIT_COS = 0.5  # the isotropic part of the slope error in the footprint's table, per unit slope error
 
 
 def tilt_covariance(incoming: Tensor, normal: Tensor) -> Tensor:
@@ -42,14 +41,13 @@ def tilt_covariance(incoming: Tensor, normal: Tensor) -> Tensor:
                 + cos**2 * (eye - outer))
 
 
-def split(spread: Tensor, unit: Tensor, slope_error: float) -> tuple[float, Tensor]:
+def split(tilt: Tensor, unit: Tensor, slope_error: float) -> tuple[float, Tensor]:
     """(isotropic slope error for the density table (rad), remainder (B, 3, 3) rad^2): the split of
-    the module docstring for B groups' mean G `spread` (B, 3, 3) and mean rays `unit` (B, 3)."""
-    across = torch.linalg.eigvalsh(spread.detach().double())[:, 1].clamp(0.0, 4.0)  # 4 cos^2(theta_i)
-    cos = math.floor(float(across.min().sqrt()) / 2 / COS_STEP) * COS_STEP if len(across) else 1.0
-    cos = max(cos, COS_STEP)  # a grazing ray (theta_i > 88 deg) keeps a little isotropic spread
+    the module docstring for B groups' mean G `tilt` (B, 3, 3) and mean rays `unit` (B, 3)."""
     plane = torch.eye(3, dtype=unit.dtype, device=unit.device) - unit[:, :, None] * unit[:, None, :]
-    return slope_error * cos, slope_error**2 * (spread - 4 * cos**2 * plane)
+    value, vector = torch.linalg.eigh(tilt - 4 * SPLIT_COS**2 * plane)
+    remainder = vector @ torch.diag_embed(value.clamp_min(0.0)) @ vector.transpose(1, 2)
+    return slope_error * SPLIT_COS, slope_error**2 * remainder
 
 
 def on_plane(covariance: Tensor, unit: Tensor, path: Tensor) -> Tensor:
@@ -69,14 +67,3 @@ def in_cells(covariance: Tensor, cell: Tensor) -> Tensor:
     scale = torch.stack((-1.0 / cell[:, 1], 1.0 / cell[:, 0]), -1)  # row = -up / height, column = right / width
     swapped = covariance.flip(-1, -2)  # (up, right) order
     return swapped * scale[:, :, None] * scale[:, None, :]
-
-
-def gaussian_spectrum(covariance: Tensor, shape: tuple[int, int]) -> Tensor:
-    """(B, N_r, N_c // 2 + 1) the rfft2 of a Gaussian of covariance (B, 2, 2) in (row, column) cells on
-    a periodic grid of shape (N_r, N_c), centred on cell (0, 0): multiplying a spectrum by it
-    convolves with the Gaussian (power kept)."""
-    rows = torch.fft.fftfreq(shape[0], dtype=covariance.dtype, device=covariance.device)[:, None]
-    cols = torch.fft.rfftfreq(shape[1], dtype=covariance.dtype, device=covariance.device)[None, :]
-    c = covariance[:, :, :, None, None]
-    q = rows**2 * c[:, 0, 0] + 2 * rows * cols * c[:, 0, 1] + cols**2 * c[:, 1, 1]
-    return torch.exp(-2 * math.pi**2 * q.clamp_min(0.0))  # >= 0 but for grazing rays (see split)
