@@ -535,7 +535,7 @@ def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics:
     radius = path.new_empty(len(path))
     for members, own in groups:
         radius[members] = support_radius(own.sun, own.slope_error)
-    reach = radius * path / unit[:, 0].abs().clamp_min(1e-6)  # (B,) m
+    reach = radius * path / unit[:, 0].abs().clamp_min(1e-6) + 4 * extent.diagonal(dim1=-2, dim2=-1).sum(-1).sqrt()
     lit = power > 0
     (x0, kx, nx), (y0, ky, ny) = _window(x, lit, reach / pw, cols), _window(y, lit, reach / ph, rows)
     size = int(max(nx.max(), ny.max()))  # the chunk's grid: as many cells as its widest window needs

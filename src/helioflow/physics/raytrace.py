@@ -478,11 +478,13 @@ def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path
     radius = support_radius(optics.sun, optics.slope_error)
     if radius == 0.0:  # a point sun without slope error: no spread
         return deposit(col - pad_c, row - pad_r, power, target.resolution)
-    # The footprint reaches at most support * path / cos(incidence on the target); rays farther
+    # The footprint reaches at most support * path / cos(incidence on the target) (and 4 sigma of
+    # the cells' extent beyond); rays farther
     # than that (and the bilinear pixel) beside the target add nothing to it, so the canvas is cut
     # down to that margin.
-    spread = radius * path / unit[:, 0].abs()
     pw, ph = target.pixel_size
+    cells = 4 * extent.diagonal(dim1=-2, dim2=-1).sum(-1).sqrt() * max(pw, ph)  # what the cells' extent adds (m)
+    spread = radius * path / unit[:, 0].abs() + cells
     widest = float(spread.detach().max()) if spread.numel() else 0.0
     jr, jc = min(rows + pad_r, math.ceil(widest / ph) + 1), min(cols + pad_c, math.ceil(widest / pw) + 1)
     mr, mc = min(pad_r, jr + 1), min(pad_c, jc + 1)
