@@ -73,7 +73,6 @@ from helioflow.physics.raytrace import (
     Optics,
     _fft_size,
     blurred,
-    cell_extent,
     density_lookup,
     deposit,
     footprint,
@@ -449,8 +448,7 @@ def _trace_chunk(field, rows, rot, rects, receiver, sun, aim, optics, candidates
         transmittance = optics.transmittance((aim[rows] - field.position[rows]).norm(dim=-1))
     arriving = sent * transmittance[:, None]
     own = None if field.slope_error is None else field.slope_error[rows]
-    spots = _spots(points, ray, arriving, receiver, optics, own, slope.tilt_covariance(-sun, normals),
-                   field.facet_centre.shape[1])
+    spots = _spots(points, ray, arriving, receiver, optics, own, slope.tilt_covariance(-sun, normals))
     on_receiver = spots.sums() * receiver.pixel_area
     terms = {
         "incident": incident.sum(-1),
@@ -503,7 +501,7 @@ def _optics_groups(optics: Optics, slope_error: Tensor | None) -> list[tuple[Ten
 
 
 def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics: Optics,
-           slope_error: Tensor | None, tilts: Tensor, n_facets: int) -> _Spots:
+           slope_error: Tensor | None, tilts: Tensor) -> _Spots:
     """Flux of B heliostats' cells on the receiver (see the module docstring).
 
     Args:
@@ -511,7 +509,6 @@ def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics:
         power: (B, P) power arriving at the receiver plane (W);
         slope_error: (B,) each heliostat's own slope error (rad), or None: the optics';
         tilts: (B, P, 3, 3) each ray's slope.tilt_covariance in ENU;
-        n_facets: facets per heliostat (the P cells are n_facets square grids, raytrace.cell_extent).
     """
     rows, cols = receiver.resolution
     pw, ph = receiver.pixel_size
@@ -530,12 +527,11 @@ def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics:
     unit = normalize((weight[..., None] * ray).sum(1)) @ frame  # (B, 3)
     path = (weight * t).sum(-1)
     tilt = frame.T @ (weight[..., None, None] * tilts).sum(1) @ frame  # (B, 3, 3) on (normal, right, up)
-    extent = cell_extent(torch.stack((x * pw, -y * ph), -1), weight, n_facets)  # (B, 2, 2) m^2 (right, up)
     groups = _optics_groups(optics, slope_error)
     radius = path.new_empty(len(path))
     for members, own in groups:
         radius[members] = support_radius(own.sun, own.slope_error)
-    reach = radius * path / unit[:, 0].abs().clamp_min(1e-6) + 4 * extent.diagonal(dim1=-2, dim2=-1).sum(-1).sqrt()
+    reach = radius * path / unit[:, 0].abs().clamp_min(1e-6)  # (B,) m
     lit = power > 0
     (x0, kx, nx), (y0, ky, ny) = _window(x, lit, reach / pw, cols), _window(y, lit, reach / ph, rows)
     size = int(max(nx.max(), ny.max()))  # the chunk's grid: as many cells as its widest window needs
@@ -546,7 +542,7 @@ def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics:
     def spread(m, own: Optics) -> Tensor:  # the heliostats m of one slope error
         if own.sun.kind == "point" and own.slope_error == 0:
             return cells[m] / (cell[m, 0] * cell[m, 1])[:, None, None]  # the beam does not spread
-        return _convolve_footprint(cells[m], unit[m], path[m], tilt[m], extent[m], cell[m], reach[m], own)
+        return _convolve_footprint(cells[m], unit[m], path[m], tilt[m], cell[m], reach[m], own)
 
     if len(groups) == 1:
         flux = spread(*groups[0])
@@ -589,16 +585,14 @@ def _window(x: Tensor, lit: Tensor, reach: Tensor, pixels: int) -> tuple[Tensor,
     return (lo.floor() - k)[:, None], k[:, None], (span / k).ceil() + 2
 
 
-def _convolve_footprint(cells: Tensor, unit: Tensor, path: Tensor, tilt: Tensor, extent: Tensor, cell: Tensor,
-                        reach: Tensor, optics: Optics) -> Tensor:
+def _convolve_footprint(cells: Tensor, unit: Tensor, path: Tensor, tilt: Tensor, cell: Tensor, reach: Tensor,
+                        optics: Optics) -> Tensor:
     """(B, C, C) deposited power (W) convolved with each heliostat's footprint: flux (W/m^2). The
-    footprint holds the slope error's isotropic part; a Gaussian on the spectrum adds the rest
-    (slope.py) and the extent of the cells that the central rays stand for.
+    footprint holds the slope error's isotropic part and is blurred by the rest (slope.py).
 
     Args:
         unit: (B, 3) mean ray on the receiver's (normal, right, up); path: (B,) its length (m);
         tilt: (B, 3, 3) the rays' mean slope.tilt_covariance on the same axes;
-        extent: (B, 2, 2) the cells' covariance on the receiver's (right, up) (m^2);
         cell: (B, 2) cell width and height (m); reach: (B,) the footprint's reach (m).
     """
     # The kernel reaches J cells each way (J < C); a circular convolution of period >= C + J
@@ -614,7 +608,7 @@ def _convolve_footprint(cells: Tensor, unit: Tensor, path: Tensor, tilt: Tensor,
     for rows, q in ((smooth, 1), (~smooth, FOOTPRINT_SUPERSAMPLING)):
         if rows.any():
             kernel[rows] = footprint(density, unit[rows], path[rows], cell[rows], (reach_cells, reach_cells), q)
-    kernel = blurred(kernel, slope.in_cells(extent + slope.on_plane(remainder, unit, path), cell))
+    kernel = blurred(kernel, slope.in_cells(slope.on_plane(remainder, unit, path), cell))
     # A footprint wholly inside its grid carries exactly the ray's power (cf. raytrace).
     inside = reach < reach_cells * cell.amin(-1)
     norm = kernel.sum((-2, -1)) * cell[:, 0] * cell[:, 1]

@@ -30,7 +30,6 @@ from helioflow.physics.raytrace import (
     MirrorPoints,
     Optics,
     _project,
-    cell_extent,
     central_hits,
     mean_rays,
     mirror_points,
@@ -63,8 +62,6 @@ class LinearisedTrace:
         unit, path, spread: (S, 3) the power-weighted mean ray on the target's (normal, right, up),
             (S,) its length (m) and (S, 3, 3) the rays' mean slope.tilt_covariance: where and how
             each image's footprint is evaluated.
-        extent: (S, 2, 2) the cells' covariance in (row, column) pixels (raytrace.cell_extent), of
-            the whole heliostat at the linearisation point (so that facets' images add up).
         distance: the heliostat-target distance (m) a transmittance is evaluated at.
         points: the cells as a mirror mask sees them at the linearisation point (shapes (S, F * P, 3)).
         at: the effective error tensors ({"tracking": (5,), "canting": (F, 2), "surface":
@@ -80,7 +77,6 @@ class LinearisedTrace:
     unit: Tensor
     path: Tensor
     spread: Tensor
-    extent: Tensor
     distance: float
     at: dict
     target: Target
@@ -116,7 +112,7 @@ class LinearisedTrace:
         power = power[:, index].reshape(n_sun, -1)
         moved = moved.reshape(n_sun, -1, 2)
         flux = splat_footprints(moved[..., 0], moved[..., 1], power, self.unit, self.path, self.spread,
-                                self.extent, self.target, optics) / self.target.pixel_area
+                                self.target, optics) / self.target.pixel_area
         return (flux, power.sum(-1)) if with_launched else flux
 
 
@@ -159,9 +155,6 @@ def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: 
 
     hits, power, unit, path, spread = traced(base)
     mean_unit, mean_path, mean_spread = mean_rays(unit, path, power.reshape(len(sun), -1), 1, spread)
-    weight = power.reshape(len(sun), -1)
-    extent = cell_extent(hits.reshape(len(sun), -1, 2).flip(-1), weight / weight.sum(-1, keepdim=True).clamp_min(1e-30),
-                         n_facets)
 
     def derivative(key: str, entry: int) -> Tensor:
         moved = []
@@ -187,5 +180,5 @@ def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: 
     points = MirrorPoints(*(back(x) for x in (points.local, points.world, points.to_sun, points.reflected,
                                                 points.aim, points.sun)))
     return LinearisedTrace(back(hits), derivatives, back(h.facet_size), g, back(power), back(mean_unit),
-                           back(mean_path), back(mean_spread), back(extent), float((target.center - heliostat.position).norm()),
+                           back(mean_path), back(mean_spread), float((target.center - heliostat.position).norm()),
                            {k: back(v) for k, v in at.items()}, target, points)

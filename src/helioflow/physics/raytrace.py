@@ -382,9 +382,8 @@ def _splat_kernel(c: _Rays, target: Target, optics: Optics, n_facets: int) -> Te
     col, row, power, unit, path = central_hits(c, padded_canvas(target))
     unit, path, spread = mean_rays(unit, path, power, n_facets, tilt_spread(c))
     groups = n_sun * n_facets
-    col, row, power = (v.reshape(groups, -1) for v in (col, row, power))
-    extent = cell_extent(torch.stack((row, col), -1), power / power.sum(-1, keepdim=True).clamp_min(1e-30), 1)
-    flux = splat_footprints(col, row, power, unit, path, spread, extent, target, optics)
+    flux = splat_footprints(col.reshape(groups, -1), row.reshape(groups, -1), power.reshape(groups, -1),
+                            unit, path, spread, target, optics)
     return flux.reshape(n_sun, n_facets, *target.resolution).sum(1)
 
 
@@ -429,28 +428,6 @@ def mean_rays(unit: Tensor, path: Tensor, power: Tensor, n_groups: int, spread: 
     return normalize(mean).reshape(-1, 3), mean_path.reshape(-1), mean_spread.reshape(-1, 3, 3)
 
 
-def cell_extent(hits: Tensor, weight: Tensor, n_grids: int) -> Tensor:
-    """(B, 2, 2) covariance that the cells add to a spot, in the units of `hits`: each central ray
-    stands for its whole cell, whose rays land spread by where in the cell they leave it. To first
-    order a point (u, v) cells from the centre (uniform in +-1/2) lands at hit + u d_1 + v d_2, d_k the
-    change of the hit from one cell to the next along the facet's grid (central differences of the
-    central hits: this holds the cell's size, its curvature and focusing, and the projection), so a
-    cell adds (d_1 d_1^T + d_2 d_2^T) / 12; averaged over the cells by `weight`.
-
-    Args:
-        hits: (B, P, 2) the central rays' hits on the target plane (any two axes, any unit).
-        weight: (B, P) their shares of the power (summing to 1 over P).
-        n_grids: the P cells are n_grids square grids (facets), one after the other
-            (heliostat.sample_surface).
-    """
-    side = math.isqrt(hits.shape[1] // n_grids)
-    if side < 2:
-        return hits.new_zeros(len(hits), 2, 2)
-    steps = torch.gradient(hits.reshape(len(hits), n_grids, side, side, 2), dim=(2, 3))  # d_1, d_2
-    cell = sum(d[..., :, None] * d[..., None, :] for d in steps) / 12  # (B, F, G, G, 2, 2)
-    return (weight[..., None, None] * cell.reshape(len(hits), -1, 2, 2)).sum(1)
-
-
 def tilt_spread(c: _Rays) -> Tensor:
     """(S, P, 3, 3) slope.tilt_covariance of every central ray on the target's (normal, right, up),
     from the reflection law's derivatives g_1, g_2 that the rays carry."""
@@ -459,32 +436,28 @@ def tilt_spread(c: _Rays) -> Tensor:
 
 
 def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path: Tensor, tilt: Tensor,
-                     extent: Tensor, target: Target, optics: Optics) -> Tensor:
+                     target: Target, optics: Optics) -> Tensor:
     """Central rays of B groups deposited bilinearly on the padded canvas (`padded_canvas`) and
     convolved with the footprint of each group's mean ray: (B, H, W) tent-averaged power per
     pixel (W) of the target. The slope error blurs less across the plane of incidence
-    (physics/slope.py): the footprint holds its isotropic part; a Gaussian on the spectrum adds the
-    rest and the extent of the cells that the central rays stand for (`cell_extent`).
+    (physics/slope.py): the footprint holds its isotropic part and is blurred by the rest.
 
     Args:
         col, row: (B, N) padded pixel coordinates on the canvas (see `deposit`).
         power: (B, N) power of each ray (W).
         unit, path, tilt: (B, 3) mean ray direction on the target's (normal, right, up), (B,) its
             length (m) and (B, 3, 3) the rays' mean slope.tilt_covariance (`mean_rays`).
-        extent: (B, 2, 2) the cells' covariance in (row, column) pixels (`cell_extent`).
     """
     rows, cols = target.resolution
     pad_r, pad_c = rows // 2, cols // 2
     radius = support_radius(optics.sun, optics.slope_error)
     if radius == 0.0:  # a point sun without slope error: no spread
         return deposit(col - pad_c, row - pad_r, power, target.resolution)
-    # The footprint reaches at most support * path / cos(incidence on the target) (and 4 sigma of
-    # the cells' extent beyond); rays farther
+    # The footprint reaches at most support * path / cos(incidence on the target); rays farther
     # than that (and the bilinear pixel) beside the target add nothing to it, so the canvas is cut
     # down to that margin.
+    spread = radius * path / unit[:, 0].abs()
     pw, ph = target.pixel_size
-    cells = 4 * extent.diagonal(dim1=-2, dim2=-1).sum(-1).sqrt() * max(pw, ph)  # what the cells' extent adds (m)
-    spread = radius * path / unit[:, 0].abs() + cells
     widest = float(spread.detach().max()) if spread.numel() else 0.0
     jr, jc = min(rows + pad_r, math.ceil(widest / ph) + 1), min(cols + pad_c, math.ceil(widest / pw) + 1)
     mr, mc = min(pad_r, jr + 1), min(pad_c, jc + 1)
@@ -492,7 +465,7 @@ def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path
     isotropic, remainder = slope.split(tilt, unit, float(optics.slope_error))
     pixel = unit.new_tensor(target.pixel_size).expand(len(unit), 2)
     kernel = footprint(density_lookup(optics.sun, isotropic), unit, path, pixel, (jr, jc))
-    kernel = blurred(kernel, extent + slope.in_cells(slope.on_plane(remainder, unit, path), pixel))
+    kernel = blurred(kernel, slope.in_cells(slope.on_plane(remainder, unit, path), pixel))
     # A footprint that lies wholly inside the kernel window carries exactly the ray's power;
     # renormalising removes the lattice error of sampling a hard-edged sun disc on pixels.
     inside = spread < min(jr * ph, jc * pw)
