@@ -546,17 +546,21 @@ def convolve(images: Tensor, kernels: Tensor) -> Tensor:
 
 def blurred(kernels: Tensor, covariance: Tensor) -> Tensor:
     """(B, Hk, Wk) kernels convolved with Gaussians of covariance (B, 2, 2) in (row, column) cells,
-    same shape (what the blur moves beyond the kernels' extent is dropped). The Gaussians are sampled
-    at the cell centres and normalised, so they are never negative and keep the power (a Gaussian
-    much narrower than a cell stays a single cell)."""
-    reach = math.ceil(4 * math.sqrt(float(covariance.diagonal(dim1=-2, dim2=-1).max().clamp_min(0.0))))
+    same shape (what the blur moves beyond the kernels' extent is dropped). Each Gaussian is sampled at
+    the cell centres within 4 sigma of its own widest axis and normalised there, so it is never negative,
+    keeps the power and does not depend on the others in the batch (a Gaussian much narrower than a
+    cell stays a single cell)."""
+    widest = covariance.diagonal(dim1=-2, dim2=-1).amax(-1).clamp_min(0.0)  # (B,) cells^2
+    own = torch.ceil(4 * widest.sqrt())  # (B,) each one's reach in cells
+    reach = int(own.max()) if len(own) else 0
     if reach == 0:
         return kernels
     offset = torch.arange(-reach, reach + 1, dtype=kernels.dtype, device=kernels.device)
     d = torch.stack(torch.meshgrid(offset, offset, indexing="ij"), -1)  # (K, K, 2) row, column
     precision = torch.linalg.pinv(covariance.to(kernels.dtype), hermitian=True)  # (B, 2, 2)
-    exponent = torch.einsum("rci,bij,rcj->brc", d, precision, d)
-    gaussian = torch.exp(-0.5 * exponent)
+    gaussian = torch.exp(-0.5 * torch.einsum("rci,bij,rcj->brc", d, precision, d))
+    within = (d.abs().amax(-1) <= own.to(kernels.dtype)[:, None, None])  # (B, K, K)
+    gaussian = torch.where(within, gaussian, 0.0)
     gaussian = gaussian / gaussian.sum((-2, -1), keepdim=True)
     full = convolve(kernels, gaussian).clamp_min(0.0)  # the clamp removes the FFT's round-off
     return full[:, reach:reach + kernels.shape[-2], reach:reach + kernels.shape[-1]]
