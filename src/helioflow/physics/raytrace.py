@@ -557,7 +557,8 @@ def blurred(kernels: Tensor, covariance: Tensor) -> Tensor:
         return kernels
     offset = torch.arange(-reach, reach + 1, dtype=kernels.dtype, device=kernels.device)
     d = torch.stack(torch.meshgrid(offset, offset, indexing="ij"), -1)  # (K, K, 2) row, column
-    precision = torch.linalg.pinv(covariance.to(kernels.dtype), hermitian=True)  # (B, 2, 2)
+    eye = torch.eye(2, dtype=kernels.dtype, device=kernels.device)
+    precision = torch.linalg.inv(covariance.to(kernels.dtype) + 1e-6 * eye)  # a zero variance: a single cell
     gaussian = torch.exp(-0.5 * torch.einsum("rci,bij,rcj->brc", d, precision, d))
     within = (d.abs().amax(-1) <= own.to(kernels.dtype)[:, None, None])  # (B, K, K)
     gaussian = torch.where(within, gaussian, 0.0)
