@@ -602,12 +602,14 @@ def _convolve_footprint(cells: Tensor, unit: Tensor, path: Tensor, tilt: Tensor,
     # A footprint smooth on the scale of a cell is sampled at the cell centres, a sharper one averaged
     # over q x q points per cell (raytrace.FOOTPRINT_SUPERSAMPLING).
     isotropic, remainder = slope.split(tilt, unit, float(optics.slope_error))
-    density = density_lookup(optics.sun, isotropic)
-    smooth = finest_scale(optics.sun, isotropic) * path >= SMOOTH_CELLS * cell.amax(-1)  # (B,)
     kernel = cells.new_empty(len(cells), 2 * reach_cells + 1, 2 * reach_cells + 1)
-    for rows, q in ((smooth, 1), (~smooth, FOOTPRINT_SUPERSAMPLING)):
-        if rows.any():
-            kernel[rows] = footprint(density, unit[rows], path[rows], cell[rows], (reach_cells, reach_cells), q)
+    for value in isotropic.unique():  # one density table per level of the isotropic part (slope.py)
+        level = isotropic == value
+        smooth = finest_scale(optics.sun, float(value)) * path >= SMOOTH_CELLS * cell.amax(-1)  # (B,)
+        density = density_lookup(optics.sun, float(value))
+        for rows, q in ((level & smooth, 1), (level & ~smooth, FOOTPRINT_SUPERSAMPLING)):
+            if rows.any():
+                kernel[rows] = footprint(density, unit[rows], path[rows], cell[rows], (reach_cells, reach_cells), q)
     kernel = blurred(kernel, slope.in_cells(slope.on_plane(remainder, unit, path), cell))
     # A footprint wholly inside its grid carries exactly the ray's power (cf. raytrace).
     inside = reach < reach_cells * cell.amin(-1)

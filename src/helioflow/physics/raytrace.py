@@ -464,7 +464,11 @@ def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path
     deposited = deposit(col - (pad_c - mc), row - (pad_r - mr), power, (rows + 2 * mr, cols + 2 * mc))
     isotropic, remainder = slope.split(tilt, unit, float(optics.slope_error))
     pixel = unit.new_tensor(target.pixel_size).expand(len(unit), 2)
-    kernel = footprint(density_lookup(optics.sun, isotropic), unit, path, pixel, (jr, jc))
+    kernel = unit.new_empty(len(unit), 2 * jr + 1, 2 * jc + 1)
+    for value in isotropic.unique():  # one density table per level of the isotropic part
+        level = isotropic == value
+        kernel[level] = footprint(density_lookup(optics.sun, float(value)), unit[level], path[level], pixel[level],
+                                  (jr, jc))
     kernel = blurred(kernel, slope.in_cells(slope.on_plane(remainder, unit, path), pixel))
     # A footprint that lies wholly inside the kernel window carries exactly the ray's power;
     # renormalising removes the lattice error of sampling a hard-edged sun disc on pixels.

@@ -12,11 +12,9 @@ i_p = i - (i.n) n; G has eigenvalues 4 (in the plane of incidence), 4 cos^2(thet
 
 The kernel tracers convolve deposits with a footprint whose angular density, the sun shape convolved
 with an isotropic Gaussian, is tabulated radially (sun.radial_density). So the slope error is split
-(`split`): an isotropic part SPLIT_COS sigma goes into the table (the same for every ray, so that a
-result does not depend on how rays are batched), and the remainder sigma^2 (G - 4 SPLIT_COS^2
-(I - r r^T)), positive semi-definite for theta_i <= 60 deg (beyond, its negative part is dropped:
-the blur across the plane of incidence stays that of 60 deg), is a Gaussian by which the footprint
-is blurred (raytrace.blurred) after mapping it onto the target plane (`on_plane`). For a Gaussian slope
+(`split`): an isotropic part sigma c goes into the table, c the group's cos(theta_i) rounded down to
+a multiple of 1/LEVELS (a group's own, so that a result does not depend on how rays are batched,
+and few tables), and the remainder sigma^2 (G - 4 c^2 (I - r r^T)), positive semi-definite, is blurred (raytrace.blurred) after mapping it onto the target plane (`on_plane`). For a Gaussian slope
 error this is exact; each group of rays takes the mean G of its rays, as it takes their mean ray
 for the footprint.
 """
@@ -26,7 +24,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-SPLIT_COS = 0.5  # the isotropic part of the slope error in the footprint's table, per unit slope error
+LEVELS = 16  # the isotropic part's cos(theta_i) is rounded down to a multiple of 1 / LEVELS
 
 
 def tilt_covariance(incoming: Tensor, normal: Tensor) -> Tensor:
@@ -41,13 +39,15 @@ def tilt_covariance(incoming: Tensor, normal: Tensor) -> Tensor:
                 + cos**2 * (eye - outer))
 
 
-def split(tilt: Tensor, unit: Tensor, slope_error: float) -> tuple[float, Tensor]:
-    """(isotropic slope error for the density table (rad), remainder (B, 3, 3) rad^2): the split of
-    the module docstring for B groups' mean G `tilt` (B, 3, 3) and mean rays `unit` (B, 3)."""
+def split(tilt: Tensor, unit: Tensor, slope_error: float) -> tuple[Tensor, Tensor]:
+    """(isotropic slope error for the density table (B,) rad, remainder (B, 3, 3) rad^2): the split
+    of the module docstring for B groups' mean G `tilt` (B, 3, 3) and mean rays `unit` (B, 3)."""
+    across = torch.linalg.eigvalsh(tilt.detach().double())[:, 1].clamp(0.0, 4.0)  # 4 cos^2(theta_i)
+    cos = (torch.floor(across.sqrt() / 2 * LEVELS).clamp_min(1.0) / LEVELS).to(unit)  # (B,)
     plane = torch.eye(3, dtype=unit.dtype, device=unit.device) - unit[:, :, None] * unit[:, None, :]
-    value, vector = torch.linalg.eigh(tilt - 4 * SPLIT_COS**2 * plane)
-    remainder = vector @ torch.diag_embed(value.clamp_min(0.0)) @ vector.transpose(1, 2)
-    return slope_error * SPLIT_COS, slope_error**2 * remainder
+    value, vector = torch.linalg.eigh(tilt - 4 * cos[:, None, None] ** 2 * plane)
+    remainder = vector @ torch.diag_embed(value.clamp_min(0.0)) @ vector.transpose(1, 2)  # >= 0 to round-off
+    return slope_error * cos, slope_error**2 * remainder
 
 
 def on_plane(covariance: Tensor, unit: Tensor, path: Tensor) -> Tensor:
