@@ -8,9 +8,17 @@ import torch
 
 from helioflow.errors import ConfigError
 from helioflow.models.physical import PhysicsConfig, drt_effects
-from helioflow.models.physics_fit import FitSettings, Measurements, _Fitter, blur_levels, fit_effects
+from helioflow.models.physics_fit import (
+    FitSettings,
+    Measurements,
+    _Fitter,
+    blur_levels,
+    fit_effects,
+    fit_stages,
+    initial_tensors,
+)
 from helioflow.physics.heliostat import TRACKING_PARAMETERS, ideal_heliostat, without_planes
-from helioflow.physics.scene import Scene
+from helioflow.physics.scene import Scene, normalised
 from helioflow.physics.target import Target
 
 BUIE = {"kind": "buie", "csr": 0.1}
@@ -289,3 +297,30 @@ def test_a_checkpoint_of_another_fit_is_ignored(tmp_path):
     fresh = fit_effects(s, effects, other, settings)
     assert resumed.history == fresh.history
     assert all(torch.equal(resumed.tensors[k], fresh.tensors[k]) for k in fresh.tensors)
+
+
+def stage_names(s: Scene, effects: dict, data: Measurements, settings: FitSettings) -> list[str]:
+    fit = _Fitter(s, data, data.images, settings, [])
+    masks = initial_tensors(effects, s.heliostat)[1]
+    spread = [("slope_error", "sigma_mrad")] if effects.get("slope_error") else []
+    return [name for name, _ in fit_stages(fit, fit, masks, spread, False, "fit")]
+
+
+def test_a_fit_runs_the_named_stages_its_settings_and_free_parameters_call_for():
+    s, effects, data, settings = resumable_fit()
+    assert stage_names(s, effects, data, settings) == ["rigid", "round 1", "round 2", "facet hops", "pinned hops"]
+    assert stage_names(s, effects, data, replace(settings, facet_hops=0, pinned_hops=0, rounds=3)) == \
+        ["rigid", "round 1", "round 2", "round 3"]
+    tracking = {"sunshape": BUIE, "tracking": {f"{n}_mrad": "fit" for n in TRACKING_PARAMETERS}}
+    assert stage_names(s, tracking, data, replace(settings, gauss_newton_steps=2)) == ["round 1", "polish"]
+    too_many = replace(settings, gauss_newton_steps=2, gauss_newton_max_parameters=4)  # 5 tracking entries
+    assert stage_names(s, tracking, data, too_many) == ["round 1"]
+
+
+def test_a_fits_loss_is_its_final_state_on_the_trace_the_model_predicts_with():
+    """Descended on the linearised trace, the fit still reports the exact trace's loss of what it returns."""
+    s, effects, data, settings = resumable_fit()
+    settings = replace(settings, facet_hops=0, pinned_hops=0)
+    result = fit_effects(s, effects, data, settings)
+    exact = _Fitter(s, data, normalised(data.images, settings.loss, 1.0), settings, [])
+    assert result.history[-1] == pytest.approx(exact.loss(result.effects, result.tensors), rel=1e-5)

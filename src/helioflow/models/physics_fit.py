@@ -15,7 +15,8 @@ and the heliostat tensors being fitted. Parameters are fitted in three ways, by 
   each facet's plane, so that no effect can mimic another (a common tilt is tracking, a facet's
   tilt is canting);
 - spread scalars (sun shape, slope error, camera blur): golden-section search on a log scale
-  within the registry bounds (the kernel tracer is not differentiable in them);
+  within the registry bounds (the kernel tracer is not differentiable in them; SciPy's bounded
+  Brent search was measured against it and lost, see `_Fitter.search`);
 - linear scalars (camera gain, reflectivity, constant transmittance; camera background): closed
   form, a least-squares line measured = a * predicted + b after every trace.
 
@@ -44,11 +45,19 @@ held, and a hop that frees everything at once lets the facet slide back into the
 for; pinned flat, the facet makes its neighbours give up the cover first.
 
 A fit with few free tensor entries (at most `gauss_newton_max_parameters`) ends with
-Gauss-Newton steps on them (`gauss_newton_steps`) on the exact trace, then one more spread search
-there: they step along long flat valleys at once (a single-azimuth scan turns the mirror about
+Gauss-Newton steps on them (`gauss_newton_steps`, SciPy's Levenberg-Marquardt) on the exact trace,
+then one more spread search there: they step along long flat valleys at once (a single-azimuth scan turns the mirror about
 nearly one axis, so the elevation offset and the northward pedestal tilt move the spot almost
 alike), and on the exact trace they remove the last of what the linearisation leaves out (the
 cells' power and footprints follow the errors too, at a level only a near-perfect fit sees).
+
+The fit runs in named stages (`fit_stages`), each a function from a FitState (tensors, effect
+list, loss history) to the next: "rigid", "round 1" (coarse to fine), "round 2", ..., "facet hops",
+"pinned hops", "polish" (Gauss-Newton), as the settings and the free parameters call for; a
+checkpoint keeps the state after each stage by name (`FitCheckpoint`). The fit's loss, the last
+entry of its history, is always the same one: the settings' loss of the final state on the trace the
+model predicts with (`finish`, else the scene), linear scalars at their least-squares values - not
+the linearised trace's, whichever stage ran last.
 
 Two losses: "absolute" compares images divided by one scale (the dataset's maximum, as the
 metrics do); "shape" compares images each divided by its own sum, so a pure scale (reflectivity,
@@ -61,10 +70,13 @@ from __future__ import annotations
 import logging
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import numpy as np
 import torch
+from scipy.optimize import least_squares
 from torch import Tensor
 from tqdm import tqdm
 
@@ -161,7 +173,8 @@ class FitSettings:
         linearised: fit the tensors of a heliostat with several facets on the linearised trace
             (module docstring); False: on the scene's own trace, tens of times slower (what
             `python -m helioflow.bench fit` compares).
-        gauss_newton_steps: Gauss-Newton steps after the rounds (module docstring); 0 = none.
+        gauss_newton_steps: Gauss-Newton (Levenberg-Marquardt) steps after the rounds (module
+            docstring): at most this many + 1 residual traces beside the Jacobians; 0 = none.
         gauss_newton_max_parameters: the steps run only when at most this many tensor entries
             are free (each step traces twice per entry).
     """
@@ -211,59 +224,88 @@ def fit_effects(scene: Scene, effects: dict, data: Measurements, settings: FitSe
             if isinstance(value, (int, float)) and not isinstance(value, bool):
                 effects[e][k] = float(value)
     target = normalised(data.images, settings.loss, 1.0)
-    resume = FitCheckpoint(checkpoint, LINEARISED, scene, effects, data, settings, finish)
-    exact = finish or scene
+    exact = _Fitter(finish or scene, data, target, settings, linear)
+    fit = exact
     if tensors and settings.linearised and scene.heliostat.n_facets > 1:
-        scene = LinearisedScene.of(exact, effects, tensors, data.azimuth_deg, data.elevation_deg)
-    fit = _Fitter(scene, data, target, settings, linear)
-    history: list[float] = []
-    if resume.saved is not None:
-        tensors, effects, history = (resume.saved[k] for k in ("tensors", "effects", "history"))
-        tensors = {k: v.to(data.images.device) for k, v in tensors.items()}  # saved on the CPU
+        linearised = LinearisedScene.of(finish or scene, effects, tensors, data.azimuth_deg, data.elevation_deg)
+        fit = _Fitter(linearised, data, target, settings, linear)
+    elif finish is not None:
+        fit = _Fitter(scene, data, target, settings, linear)
+    stages = fit_stages(fit, exact, masks, spread, progress, label)
+    resume = FitCheckpoint(checkpoint, LINEARISED, scene, effects, data, settings, finish, [n for n, _ in stages])
+    state = resume.state or FitState(tensors, effects, [])
+    state.tensors = {k: v.to(data.images.device) for k, v in state.tensors.items()}  # saved on the CPU
+    for name, stage in stages:
+        if name not in resume.done:
+            state = stage(state)
+            resume.save(name, state)
+    effects = exact.with_linear(state.effects, state.tensors) if linear else state.effects
+    history = [*state.history, exact.loss(state.effects, state.tensors)]
+    return FitResult(effects, effective_tensors({k: v.detach() for k, v in state.tensors.items()}), history, pairs)
 
-    def saved(tensors: dict) -> None:
-        """A stage ended with `tensors`: keep the state for a resumed fit."""
-        resume.save({"tensors": tensors, "effects": effects, "history": history})
 
-    def staged(result: tuple[dict, list[float]]) -> dict:
-        """A stage's (tensors, losses): the losses go to the history and the spread scalars are
-        searched again on the tensors (into `effects`); returns the tensors."""
-        history.extend(result[1])
-        search_spreads(fit, effects, result[0], spread)
-        return result[0]
+@dataclass
+class FitState:
+    """A fit between two of its stages: the heliostat tensors, the effect list (spread scalars as
+    searched so far; linear scalars neutral) and the loss of every trace with gradient so far."""
 
-    if "surface" in tensors and (len(tensors) > 1 or spread) and resume.due():  # rigid first (module doc)
-        rigid = {k: m & (k != "surface") for k, m in masks.items()}
-        if len(tensors) > 1:  # a surface alone has nothing rigid to descend, only spreads to search
-            tensors = staged(fit.descend(effects, tensors, rigid, progress, label + " (rigid)"))
-        else:
-            search_spreads(fit, effects, tensors, spread)
-        saved(tensors)
-    rounds = settings.rounds if (tensors and spread) else 1
-    for r in range(rounds):
-        if not resume.due():
-            continue
-        for blur in (blur_levels(settings.coarse_blur_px) if r == 0 else (0.0,)) if tensors else ():
-            tensors, losses = fit.descend(effects, tensors, masks, progress, label, blur)
-            history += losses
-        search_spreads(fit, effects, tensors, spread)
-        saved(tensors)
-    many_facets = "surface" in tensors and scene.heliostat.n_facets > 1
-    if settings.facet_hops and many_facets and resume.due():
-        tensors = staged(fit.hop(effects, tensors, masks, progress, label))
-        saved(tensors)
-    if settings.pinned_hops and many_facets and resume.due():
-        tensors = staged(fit.pinned_hops(effects, tensors, masks, progress, label))
-        saved(tensors)
+    tensors: dict[str, Tensor]
+    effects: dict
+    history: list[float]
+
+
+Stage = Callable[[FitState], FitState]
+
+
+def fit_stages(fit: _Fitter, exact: _Fitter, masks: dict, spread: list[tuple[str, str]], progress: bool,
+               label: str) -> list[tuple[str, Stage]]:
+    """The named stages of a fit, in order, each a function from the state before it to the state
+    after it (module docstring): "rigid" (tracking and canting descended, spreads searched, the
+    surface flat), "round 1" (descents coarse to fine, then the spreads searched), "round 2", ...,
+    "facet hops", "pinned hops" and "polish" (Gauss-Newton on the exact trace, then the spreads
+    searched there), those that the settings and the free parameters (`masks`) call for. `fit`
+    descends the tensors (on the linearised trace where it pays); `exact` is the trace the model
+    predicts with."""
+    settings = fit.settings
+    many_facets = "surface" in masks and fit.scene.heliostat.n_facets > 1
     free = sum(int(m.sum()) for m in masks.values())
-    if settings.gauss_newton_steps and 0 < free <= settings.gauss_newton_max_parameters and resume.due():
-        fit = _Fitter(exact, data, target, settings, linear)  # the exact trace, below the linearisation's error
-        tensors = staged(fit.gauss_newton(effects, tensors, masks))
-        saved(tensors)
-    history.append(fit.loss(effects, tensors))
-    if linear:
-        effects = fit.with_linear(effects, tensors)
-    return FitResult(effects, effective_tensors({k: v.detach() for k, v in tensors.items()}), history, pairs)
+
+    def searched(on: _Fitter, state: FitState, result: tuple[dict, list[float]]) -> FitState:
+        """The state after a descent's (tensors, losses), with the spreads searched again on them."""
+        tensors, losses = result
+        return FitState(tensors, search_spreads(on, state.effects, tensors, spread), state.history + losses)
+
+    def rigid(state: FitState) -> FitState:
+        if len(masks) == 1:  # a surface alone has nothing rigid to descend, only spreads to search
+            return searched(fit, state, (state.tensors, []))
+        held = {k: m & (k != "surface") for k, m in masks.items()}
+        return searched(fit, state, fit.descend(state.effects, state.tensors, held, progress, label + " (rigid)"))
+
+    def round_of(blurs: tuple[float, ...]) -> Stage:
+        def descend(state: FitState) -> FitState:
+            tensors, losses = state.tensors, []
+            for blur in blurs:
+                tensors, more = fit.descend(state.effects, tensors, masks, progress, label, blur)
+                losses += more
+            return searched(fit, state, (tensors, losses))
+        return descend
+
+    stages: list[tuple[str, Stage]] = []
+    if "surface" in masks and (len(masks) > 1 or spread):  # rigid first (module docstring)
+        stages.append(("rigid", rigid))
+    for r in range(settings.rounds if (masks and spread) else 1):
+        blurs = (blur_levels(settings.coarse_blur_px) if r == 0 else (0.0,)) if masks else ()
+        stages.append((f"round {r + 1}", round_of(blurs)))
+    if settings.facet_hops and many_facets:
+        stages.append(("facet hops", lambda state: searched(
+            fit, state, fit.hop(state.effects, state.tensors, masks, progress, label))))
+    if settings.pinned_hops and many_facets:
+        stages.append(("pinned hops", lambda state: searched(
+            fit, state, fit.pinned_hops(state.effects, state.tensors, masks, progress, label))))
+    if settings.gauss_newton_steps and 0 < free <= settings.gauss_newton_max_parameters:
+        stages.append(("polish", lambda state: searched(
+            exact, state, exact.gauss_newton(state.effects, state.tensors, masks))))
+    return stages
 
 
 def with_uncertainty(scene: Scene, result: FitResult, data: Measurements, loss: str) -> FitResult:
@@ -286,45 +328,51 @@ def spot_spread(scene: Scene, result: FitResult, azimuth_deg: Tensor, elevation_
 
 
 class FitCheckpoint:
-    """A fit's state after each of its stages (the rigid descent, each round, the facet hops, the
-    pinned hops, the Gauss-Newton steps), kept in a file (written whole after every stage), so that
-    a fit stopped midway (killed, out of time) resumes after the last stage it finished and ends
-    exactly where it would have ended uninterrupted: the state holds the tensors, the effect list and
-    the loss history. The file also holds the `fingerprint` of what the fit depends on (`parts`); one made by
-    another fit is ignored (and overwritten). Without a path nothing is kept (and nothing hashed)."""
+    """A fit's state after each of its named stages (`fit_stages`), kept in a file (written whole
+    after every stage), so that a fit stopped midway (killed, out of time) resumes after the last
+    stage it finished and ends exactly where it would have ended uninterrupted. The file holds the
+    names of the stages done, the FitState after the last of them, and the `fingerprint` of what the
+    fit depends on (`parts`, the stage names among them); one made by another fit is ignored (and
+    overwritten). Without a path nothing is kept (and nothing hashed).
+
+    Attributes:
+        done: names of the stages the saved state is past ([] without one).
+        state: the saved FitState, or None.
+    """
 
     def __init__(self, path: str | os.PathLike | None, *parts):
         self.path = None if path is None else Path(path)
         self.fingerprint = fingerprint(*parts) if path is not None else ""
-        self.stage = 0  # stages met so far
-        self.saved: dict | None = None
+        self.done: list[str] = []
+        self.state: FitState | None = None
         if self.path is not None and self.path.exists():
             try:
-                state = load_torch(self.path, "a fit checkpoint")
+                saved = load_torch(self.path, "a fit checkpoint")
             except DataError as exc:
                 log.warning("ignoring the fit checkpoint: %s", exc)
-                state = {}
-            if state.get("fingerprint") == self.fingerprint:
-                self.saved = state
-                log.info("resuming the fit from %s after its stage %d", self.path, state["stage"])
+                saved = {}
+            if saved.get("fingerprint") == self.fingerprint:
+                self.done = list(saved["done"])
+                self.state = FitState(saved["tensors"], saved["effects"], saved["history"])
+                log.info("resuming the fit from %s after its stage %r", self.path, self.done[-1])
             else:
                 log.info("ignoring %s: it holds the state of another fit", self.path)
 
-    def due(self) -> bool:
-        """Meet the next stage: whether it has to run (False when the saved state is past it)."""
-        self.stage += 1
-        return self.saved is None or self.stage > self.saved["stage"]
-
-    def save(self, state: dict) -> None:
-        """Keep `state` as the state after the stage met last."""
+    def save(self, stage: str, state: FitState) -> None:
+        """Keep `state` as the state after `stage`."""
+        self.done.append(stage)
         if self.path is not None:
-            save_torch_atomic(self.path, {"fingerprint": self.fingerprint, "stage": self.stage, **state})
+            save_torch_atomic(self.path, {"fingerprint": self.fingerprint, "done": self.done,
+                                          "tensors": {k: v.detach().cpu() for k, v in state.tensors.items()},
+                                          "effects": state.effects, "history": state.history})
 
 
-def search_spreads(fit: _Fitter, effects: dict, tensors: dict, spread: list[tuple[str, str]]) -> None:
-    """Search every fitted spread scalar in turn (`_Fitter.search`), into `effects`."""
+def search_spreads(fit: _Fitter, effects: dict, tensors: dict, spread: list[tuple[str, str]]) -> dict:
+    """A copy of `effects` with every fitted spread scalar searched in turn (`_Fitter.search`)."""
+    effects = {e: dict(p) for e, p in effects.items()}
     for e, k in spread:
         effects[e][k] = fit.search(effects, tensors, e, k)
+    return effects
 
 
 def _flattened(tensors: dict, facets: Tensor) -> dict:
@@ -376,7 +424,11 @@ class _Fitter:
             return float(((self.predict(effects, tensors) - self.target) ** 2).mean())
 
     def search(self, effects: dict, tensors: dict, effect: str, name: str) -> float:
-        """Golden-section search of one spread scalar on a log scale within its bounds."""
+        """Golden-section search of one spread scalar on a log scale within its bounds. SciPy's bounded
+        Brent search (`minimize_scalar(method="bounded")`, parabolic steps, to the same resolution)
+        was measured in its place with `python -m helioflow.bench fit` (2026-11-27): held-out PSNR
+        0.2-0.35 dB lower on sanity_check (75 dB) and 1.4-1.7 dB lower on semi_sphere, one run each
+        (why was not examined: semi_sphere's surface fit ends in a basin that small changes move)."""
         p = REGISTRY[effect].parameter(name)
         lo = math.log(max(p.lower or SEARCH_FLOOR, SEARCH_FLOOR))
         hi = math.log(min(p.upper or SEARCH_CEILING, SEARCH_CEILING))
@@ -494,49 +546,47 @@ class _Fitter:
             return (residual * parts / parts.sum(0).clamp_min(1e-30)).sum((1, 2, 3))
 
     def gauss_newton(self, effects: dict, tensors: dict, masks: dict) -> tuple[dict, list[float]]:
-        """`gauss_newton_steps` Gauss-Newton steps on the free tensor entries; returns (tensors,
-        loss after each step). The Jacobian of the residual images (pixels x entries) comes from
-        central differences of each tensor effect's `fd_step`, two traces per entry: the splatted images are rough on a
-        finer scale (at the stalled sanity_check fit, autograd and 0.01 mrad differences differ by
-        12 % in the tracking gradient and by a factor 5 along the flat valley). A step is halved
-        (down to 1/8) until the loss falls; when none does, the steps end. Directions the model
-        cannot move (a facet's plane, the mean canting) make the normal equations singular: a
-        Levenberg damping of 1e-9 of their mean diagonal keeps them solvable and takes no step
-        along those directions. The surface penalty is left out (far below the data term)."""
+        """Gauss-Newton steps on the free tensor entries by SciPy's Levenberg-Marquardt (MINPACK's
+        `lm`, columns scaled by the Jacobian's norms), at most `gauss_newton_steps` + 1 traces of the
+        residual images beside its Jacobians; returns (tensors, the loss after each trace). The
+        Jacobian (pixels x entries) comes from central differences of each tensor effect's
+        `fd_step`, two traces per entry: the splatted images are rough on a finer scale (at the
+        stalled sanity_check fit, autograd and 0.01 mrad differences differ by 12 % in the tracking
+        gradient and by a factor 5 along the flat valley). Directions the model cannot move (a
+        facet's plane, the mean canting) leave the Jacobian rank-deficient; the damping takes no
+        step along them. The surface penalty is left out (far below the data term)."""
         free = [(k, tuple(i)) for k, m in masks.items() for i in m.nonzero().tolist()]
-        current = {k: v.detach().clone() for k, v in tensors.items()}
+        start = {k: v.detach().clone() for k, v in tensors.items()}
         losses: list[float] = []
+        step = np.array([TENSOR_EFFECTS[k].fd_step for k, _ in free])
 
-        def residual(values: dict) -> Tensor:
+        def values(x: np.ndarray) -> dict:
+            out = {k: v.clone() for k, v in start.items()}
+            for (k, i), v in zip(free, x.tolist()):
+                out[k][i] = v
+            return out
+
+        def misfit(x: np.ndarray) -> Tensor:
             with torch.no_grad():
-                return (self.predict(effects, values) - self.target).flatten().double()
+                return (self.predict(effects, values(x)) - self.target).flatten().double()
 
-        r = residual(current)
-        for _ in range(self.settings.gauss_newton_steps):
+        def residual(x: np.ndarray) -> np.ndarray:
+            r = misfit(x).cpu().numpy()
+            losses.append(float(np.mean(r**2)))
+            return r
+
+        def jacobian(x: np.ndarray) -> np.ndarray:
             columns = []
-            for k, i in free:
-                moved = []
-                for sign in (1.0, -1.0):
-                    v = current[k].clone()
-                    v[i] += sign * TENSOR_EFFECTS[k].fd_step
-                    moved.append(residual({**current, k: v}))
-                columns.append((moved[0] - moved[1]) / (2.0 * TENSOR_EFFECTS[k].fd_step))
-            jacobian = torch.stack(columns, 1)
-            normal = jacobian.T @ jacobian
-            damping = 1e-9 * normal.diagonal().mean() * torch.eye(len(free), dtype=normal.dtype, device=normal.device)
-            step = -torch.linalg.solve(normal + damping, jacobian.T @ r)
-            for fraction in (1.0, 0.5, 0.25, 0.125):
-                trial = {k: v.clone() for k, v in current.items()}
-                for (k, i), d in zip(free, step):
-                    trial[k][i] += float(fraction * d)
-                r_trial = residual(trial)
-                if r_trial.pow(2).mean() < r.pow(2).mean():
-                    break
-            else:
-                break
-            current, r = trial, r_trial
-            losses.append(float(r.pow(2).mean()))
-        return current, losses
+            for j, h in enumerate(step):
+                dx = np.zeros_like(x)
+                dx[j] = h
+                columns.append(((misfit(x + dx) - misfit(x - dx)) / (2.0 * h)).cpu().numpy())
+            return np.stack(columns, 1)
+
+        x0 = np.array([float(start[k][i]) for k, i in free])
+        found = least_squares(residual, x0, jac=jacobian, method="lm", x_scale="jac",
+                              max_nfev=self.settings.gauss_newton_steps + 1)
+        return values(found.x), losses[1:]  # lm moves only to points where the loss falls
 
     def _unit_linear(self, effects: dict) -> dict:
         """Effects with the fitted linear scalars at their neutral values (scale 1, offset 0)."""
