@@ -58,7 +58,6 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from helioflow.physics import slope
 from helioflow.physics.geometry import normalize, reflect, sun_vector
 from helioflow.physics.heliostat import (
     REST_FRAME,
@@ -72,7 +71,6 @@ from helioflow.physics.raytrace import (
     FOOTPRINT_SUPERSAMPLING,
     Optics,
     _fft_size,
-    blurred,
     density_lookup,
     deposit,
     footprint,
@@ -448,7 +446,7 @@ def _trace_chunk(field, rows, rot, rects, receiver, sun, aim, optics, candidates
         transmittance = optics.transmittance((aim[rows] - field.position[rows]).norm(dim=-1))
     arriving = sent * transmittance[:, None]
     own = None if field.slope_error is None else field.slope_error[rows]
-    spots = _spots(points, ray, arriving, receiver, optics, own, slope.tilt_covariance(-sun, normals))
+    spots = _spots(points, ray, arriving, receiver, optics, own)
     on_receiver = spots.sums() * receiver.pixel_area
     terms = {
         "incident": incident.sum(-1),
@@ -501,14 +499,13 @@ def _optics_groups(optics: Optics, slope_error: Tensor | None) -> list[tuple[Ten
 
 
 def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics: Optics,
-           slope_error: Tensor | None, tilts: Tensor) -> _Spots:
+           slope_error: Tensor | None = None) -> _Spots:
     """Flux of B heliostats' cells on the receiver (see the module docstring).
 
     Args:
         points: (B, P, 3) cell centres (m); ray: (B, P, 3) unit central reflected rays;
         power: (B, P) power arriving at the receiver plane (W);
-        slope_error: (B,) each heliostat's own slope error (rad), or None: the optics';
-        tilts: (B, P, 3, 3) each ray's slope.tilt_covariance in ENU;
+        slope_error: (B,) each heliostat's own slope error (rad), or None: the optics'.
     """
     rows, cols = receiver.resolution
     pw, ph = receiver.pixel_size
@@ -523,10 +520,8 @@ def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics:
     # One footprint per heliostat: that of its power-weighted mean ray.
     total = power.sum(-1, keepdim=True)
     weight = torch.where(total > 0, power / total.clamp_min(1e-30), 1 / power.shape[1])
-    frame = torch.stack((normal, right, up), dim=-1)
-    unit = normalize((weight[..., None] * ray).sum(1)) @ frame  # (B, 3)
+    unit = normalize((weight[..., None] * ray).sum(1)) @ torch.stack((normal, right, up), dim=-1)  # (B, 3)
     path = (weight * t).sum(-1)
-    tilt = frame.T @ (weight[..., None, None] * tilts).sum(1) @ frame  # (B, 3, 3) on (normal, right, up)
     groups = _optics_groups(optics, slope_error)
     radius = path.new_empty(len(path))
     for members, own in groups:
@@ -542,7 +537,7 @@ def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics:
     def spread(m, own: Optics) -> Tensor:  # the heliostats m of one slope error
         if own.sun.kind == "point" and own.slope_error == 0:
             return cells[m] / (cell[m, 0] * cell[m, 1])[:, None, None]  # the beam does not spread
-        return _convolve_footprint(cells[m], unit[m], path[m], tilt[m], cell[m], reach[m], own)
+        return _convolve_footprint(cells[m], unit[m], path[m], cell[m], reach[m], own)
 
     if len(groups) == 1:
         flux = spread(*groups[0])
@@ -585,14 +580,12 @@ def _window(x: Tensor, lit: Tensor, reach: Tensor, pixels: int) -> tuple[Tensor,
     return (lo.floor() - k)[:, None], k[:, None], (span / k).ceil() + 2
 
 
-def _convolve_footprint(cells: Tensor, unit: Tensor, path: Tensor, tilt: Tensor, cell: Tensor, reach: Tensor,
+def _convolve_footprint(cells: Tensor, unit: Tensor, path: Tensor, cell: Tensor, reach: Tensor,
                         optics: Optics) -> Tensor:
-    """(B, C, C) deposited power (W) convolved with each heliostat's footprint: flux (W/m^2). The
-    footprint holds the slope error's isotropic part and is blurred by the rest (slope.py).
+    """(B, C, C) deposited power (W) convolved with each heliostat's footprint: flux (W/m^2).
 
     Args:
         unit: (B, 3) mean ray on the receiver's (normal, right, up); path: (B,) its length (m);
-        tilt: (B, 3, 3) the rays' mean slope.tilt_covariance on the same axes;
         cell: (B, 2) cell width and height (m); reach: (B,) the footprint's reach (m).
     """
     # The kernel reaches J cells each way (J < C); a circular convolution of period >= C + J
@@ -601,16 +594,12 @@ def _convolve_footprint(cells: Tensor, unit: Tensor, path: Tensor, tilt: Tensor,
     reach_cells = int(min(size - 1, math.ceil(float((reach / cell.amin(-1)).max())) + 1))
     # A footprint smooth on the scale of a cell is sampled at the cell centres, a sharper one averaged
     # over q x q points per cell (raytrace.FOOTPRINT_SUPERSAMPLING).
-    isotropic, remainder = slope.split(tilt, unit, float(optics.slope_error))
+    density = density_lookup(optics.sun, float(optics.slope_error))
+    smooth = finest_scale(optics.sun, float(optics.slope_error)) * path >= SMOOTH_CELLS * cell.amax(-1)  # (B,)
     kernel = cells.new_empty(len(cells), 2 * reach_cells + 1, 2 * reach_cells + 1)
-    for value in isotropic.unique():  # one density table per level of the isotropic part (slope.py)
-        level = isotropic == value
-        smooth = finest_scale(optics.sun, float(value)) * path >= SMOOTH_CELLS * cell.amax(-1)  # (B,)
-        density = density_lookup(optics.sun, float(value))
-        for rows, q in ((level & smooth, 1), (level & ~smooth, FOOTPRINT_SUPERSAMPLING)):
-            if rows.any():
-                kernel[rows] = footprint(density, unit[rows], path[rows], cell[rows], (reach_cells, reach_cells), q)
-    kernel = blurred(kernel, slope.in_cells(slope.on_plane(remainder, unit, path), cell))
+    for rows, q in ((smooth, 1), (~smooth, FOOTPRINT_SUPERSAMPLING)):
+        if rows.any():
+            kernel[rows] = footprint(density, unit[rows], path[rows], cell[rows], (reach_cells, reach_cells), q)
     # A footprint wholly inside its grid carries exactly the ray's power (cf. raytrace).
     inside = reach < reach_cells * cell.amin(-1)
     norm = kernel.sum((-2, -1)) * cell[:, 0] * cell[:, 1]
