@@ -205,13 +205,7 @@ def test_a_spot_a_pixel_or_two_wide_has_the_variance_a_camera_measures(splat, pi
         assert (var - (distance * sigma) ** 2 - a**2 / 12) / pixel**2 == pytest.approx(1 / 12, abs=0.02)
 
 
-@pytest.mark.parametrize(
-    "splat",
-    ["bilinear",
-     pytest.param("kernel", marks=pytest.mark.xfail(strict=True, reason=(
-         "documented approximation: kernel splatting blurs by the slope error isotropically (2 sigma_s), "
-         "ignoring the cos(theta_i) factor out of the plane of incidence")))],
-)
+@pytest.mark.parametrize("splat", ["bilinear", "kernel"])
 def test_slope_error_blur_is_smaller_out_of_the_plane_of_incidence(splat):
     """At oblique incidence theta_i a normal tilt b turns the reflected ray by 2 b in the plane of
     incidence but by 2 b cos(theta_i) across it. Sun straight south at 80 deg, target 30 deg up

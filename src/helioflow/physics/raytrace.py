@@ -22,8 +22,9 @@ Splatting:
             power * f(theta) * cos(gamma) / r^2 at the target, theta the angle off the central ray.
             Per facet the central rays are deposited bilinearly and convolved (FFT) with the
             pixel-averaged footprint, so both modes estimate the same image; noise-free with far
-            fewer rays. Slope error enters isotropically (2 sigma), which overestimates the spread
-            across the plane of incidence by 1/cos(incidence) at oblique incidence.
+            fewer rays. A slope error turns the ray by 2 sigma in the plane of incidence and by
+            2 sigma cos(incidence) across it: the footprint holds the isotropic part, a Gaussian
+            blur the rest (physics/slope.py).
 
 Pixels: a camera pixel integrates the flux over its square, a box of variance pixel^2/12 per axis.
 Both splats blur more: the bilinear deposit by a tent (pixel^2/6 averaged over where hits fall in
@@ -52,6 +53,7 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor
 
+from helioflow.physics import slope
 from helioflow.physics.geometry import normalize, plane_axes, reflect, sun_vector
 from helioflow.physics.heliostat import Heliostat, orientation, sample_surface
 from helioflow.physics.sun import SunShape, radial_density, sample_deviations, support_radius
@@ -410,10 +412,10 @@ def _splat_kernel(c: _Rays, target: Target, optics: Optics, n_facets: int) -> Te
     """
     n_sun = c.power.shape[0]
     col, row, power, unit, path = central_hits(c, padded_canvas(target))
-    unit, path = mean_rays(unit, path, power, n_facets)
+    unit, path, spread = mean_rays(unit, path, power, n_facets, tilt_spread(c))
     groups = n_sun * n_facets
     flux = splat_footprints(col.reshape(groups, -1), row.reshape(groups, -1), power.reshape(groups, -1),
-                            unit, path, target, optics)
+                            unit, path, spread, target, optics)
     return flux.reshape(n_sun, n_facets, *target.resolution).sum(1)
 
 
@@ -440,11 +442,13 @@ def padded_canvas(target: Target) -> Target:
                    height=target.height * (rows + 2 * pad_r) / rows, resolution=(rows + 2 * pad_r, cols + 2 * pad_c))
 
 
-def mean_rays(unit: Tensor, path: Tensor, power: Tensor, n_groups: int) -> tuple[Tensor, Tensor]:
+def mean_rays(unit: Tensor, path: Tensor, power: Tensor, n_groups: int, spread: Tensor
+              ) -> tuple[Tensor, Tensor, Tensor]:
     """The power-weighted mean ray of each group of points: unit (S, P, 3) central-ray directions on
-    the target's (normal, right, up), path (S, P) lengths (m) and power (S, P) (W), the P points in
-    `n_groups` equal consecutive groups -> (S * n_groups, 3) unit directions, (S * n_groups,) paths.
-    A group without power (all its points masked or facing away) gets its points' plain mean."""
+    the target's (normal, right, up), path (S, P) lengths (m), power (S, P) (W) and spread (S, P, 3, 3)
+    (`tilt_spread`), the P points in `n_groups` equal consecutive groups -> (S * n_groups, 3) unit
+    directions, (S * n_groups,) paths, (S * n_groups, 3, 3) mean spreads. A group without power (all
+    its points masked or facing away) gets its points' plain mean."""
     n_sun = unit.shape[0]
     weight = power.reshape(n_sun, n_groups, -1)
     dark = weight.sum(-1, keepdim=True) <= 0.0  # a group that sends nothing (masked): its plain mean ray
@@ -452,20 +456,29 @@ def mean_rays(unit: Tensor, path: Tensor, power: Tensor, n_groups: int) -> tuple
     weight = weight / weight.sum(-1, keepdim=True)
     mean = (weight[..., None] * unit.reshape(n_sun, n_groups, -1, 3)).sum(2)
     mean_path = (weight * path.reshape(n_sun, n_groups, -1)).sum(-1)
-    return normalize(mean).reshape(-1, 3), mean_path.reshape(-1)
+    mean_spread = (weight[..., None, None] * spread.reshape(n_sun, n_groups, -1, 3, 3)).sum(2)
+    return normalize(mean).reshape(-1, 3), mean_path.reshape(-1), mean_spread.reshape(-1, 3, 3)
 
 
-def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path: Tensor, target: Target,
-                     optics: Optics) -> Tensor:
+def tilt_spread(c: _Rays) -> Tensor:
+    """(S, P, 3, 3) slope.tilt_covariance of every central ray on the target's (normal, right, up),
+    from the reflection law's derivatives g_1, g_2 that the rays carry."""
+    g = c.along[:, :, 3:5, :]  # (S, P, 2, 3)
+    return torch.einsum("spki,spkj->spij", g, g)
+
+
+def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path: Tensor, tilt: Tensor,
+                     target: Target, optics: Optics) -> Tensor:
     """Central rays of B groups deposited bilinearly on the padded canvas (`padded_canvas`) and
     convolved with the footprint of each group's mean ray: (B, H, W) power per pixel (W) of the
-    target, averaged over pixels (module docstring).
+    target, averaged over pixels (module docstring). The slope error blurs less across the plane of
+    incidence (physics/slope.py): the footprint holds its isotropic part and is blurred by the rest.
 
     Args:
         col, row: (B, N) padded pixel coordinates on the canvas (see `deposit`).
         power: (B, N) power of each ray (W).
-        unit, path: (B, 3) mean ray direction on the target's (normal, right, up) and (B,) its
-            length (m) (`mean_rays`).
+        unit, path, tilt: (B, 3) mean ray direction on the target's (normal, right, up), (B,) its
+            length (m) and (B, 3, 3) the rays' mean slope.tilt_covariance (`mean_rays`).
     """
     rows, cols = target.resolution
     pad_r, pad_c = rows // 2, cols // 2
@@ -484,8 +497,14 @@ def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path
     averaged = TENT_VARIANCE + (q * q - 1) / (12 * q * q)  # the central rays' deposit and the footprint's average
     deposited = deposit(col - (pad_c - mc), row - (pad_r - mr), power, (rows + 2 * mr, cols + 2 * mc),
                         averaged - CAMERA_PIXEL_VARIANCE)
-    density = density_lookup(optics.sun, float(optics.slope_error))
-    kernel = footprint(density, unit, path, unit.new_tensor(target.pixel_size).expand(len(unit), 2), (jr, jc))
+    isotropic, remainder = slope.split(tilt, unit, float(optics.slope_error))
+    pixel = unit.new_tensor(target.pixel_size).expand(len(unit), 2)
+    kernel = unit.new_empty(len(unit), 2 * jr + 1, 2 * jc + 1)
+    for value in isotropic.unique():  # one density table per level of the isotropic part
+        level = isotropic == value
+        kernel[level] = footprint(density_lookup(optics.sun, float(value)), unit[level], path[level], pixel[level],
+                                  (jr, jc))
+    kernel = blurred(kernel, slope.in_cells(slope.on_plane(remainder, unit, path), pixel))
     # A footprint that lies wholly inside the kernel window carries exactly the ray's power;
     # renormalising removes the lattice error of sampling a hard-edged sun disc on pixels.
     inside = spread < min(jr * ph, jc * pw)
@@ -497,7 +516,7 @@ def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path
     return flux[:, jr + mr : jr + mr + rows, jc + mc : jc + mc + cols] * target.pixel_area
 
 
-@functools.lru_cache(maxsize=8)
+@functools.lru_cache(maxsize=64)
 def _density_table(sun: SunShape, slope_error: float, n: int = 8192) -> tuple[Tensor, float]:
     """(n,) float64 values of the beam-spread density (1/sr) on a uniform angle grid from 0 to the
     support radius, and the grid step (rad); cached per sun shape and slope error."""
@@ -562,6 +581,29 @@ def convolve(images: Tensor, kernels: Tensor) -> Tensor:
     size = tuple(_fft_size(n) for n in full)
     spectrum = torch.fft.rfft2(images, s=size) * torch.fft.rfft2(kernels, s=size)
     return torch.fft.irfft2(spectrum, s=size)[..., : full[0], : full[1]]
+
+
+def blurred(kernels: Tensor, covariance: Tensor) -> Tensor:
+    """(B, Hk, Wk) kernels convolved with Gaussians of covariance (B, 2, 2) in (row, column) cells,
+    same shape (what the blur moves beyond the kernels' extent is dropped). Each Gaussian is sampled at
+    the cell centres within 4 sigma of its own widest axis and normalised there, so it is never negative,
+    keeps the power and does not depend on the others in the batch (a Gaussian much narrower than a
+    cell stays a single cell)."""
+    widest = covariance.diagonal(dim1=-2, dim2=-1).amax(-1).clamp_min(0.0)  # (B,) cells^2
+    own = torch.ceil(4 * widest.sqrt())  # (B,) each one's reach in cells
+    reach = int(own.max()) if len(own) else 0
+    if reach == 0:
+        return kernels
+    offset = torch.arange(-reach, reach + 1, dtype=kernels.dtype, device=kernels.device)
+    d = torch.stack(torch.meshgrid(offset, offset, indexing="ij"), -1)  # (K, K, 2) row, column
+    eye = torch.eye(2, dtype=kernels.dtype, device=kernels.device)
+    precision = torch.linalg.inv(covariance.to(kernels.dtype) + 1e-6 * eye)  # a zero variance: a single cell
+    gaussian = torch.exp(-0.5 * torch.einsum("rci,bij,rcj->brc", d, precision, d))
+    within = (d.abs().amax(-1) <= own.to(kernels.dtype)[:, None, None])  # (B, K, K)
+    gaussian = torch.where(within, gaussian, 0.0)
+    gaussian = gaussian / gaussian.sum((-2, -1), keepdim=True)
+    full = convolve(kernels, gaussian).clamp_min(0.0)  # the clamp removes the FFT's round-off
+    return full[:, reach:reach + kernels.shape[-2], reach:reach + kernels.shape[-1]]
 
 
 def _fft_size(n: int) -> int:
