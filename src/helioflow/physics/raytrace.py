@@ -15,8 +15,7 @@ and axes, so that a ray costs a handful of multiply-adds, one division and the s
 Splatting:
   bilinear  each ray's power goes to its four nearest pixel centres with bilinear weights
             (Monte Carlo, differentiable in the hit positions). The expected image is the flux
-            averaged with a one-pixel tent filter (`pixel_average` then takes it to the camera's
-            pixel average).
+            averaged with a one-pixel tent filter.
   kernel    each surface point's central ray deposits the analytic beam-spread footprint
             (sun shape convolved with the slope error, see sun.radial_density): flux density
             power * f(theta) * cos(gamma) / r^2 at the target, theta the angle off the central ray.
@@ -27,14 +26,15 @@ Splatting:
             blur the rest (physics/slope.py).
 
 Pixels: a camera pixel integrates the flux over its square, a box of variance pixel^2/12 per axis.
-Both splats blur more: the bilinear deposit by a tent (pixel^2/6 averaged over where hits fall in
-a pixel), the kernel splat by the tent of its central rays' deposit and the q x q average of its
-footprint ((q^2 - 1)/(12 q^2) pixel^2). Each deposit is sharpened by the separable three-tap filter
-that removes the excess variance (`pixel_average`): the images are the flux averaged over pixels
-to second order in the pixel size - the spot's power, centroid and second moments right - whatever
-its width (without it a 1.5-pixel camera blur fits 2 % low on images of an independent Monte Carlo).
-The filter's side taps are negative: a spot sharp on the scale of a pixel (a point sun) gets small
-negative flux beside its edges, as do a Monte Carlo image's lone rays.
+The kernel splat blurs more, by the tent of its central rays' deposit (pixel^2/6, averaged over
+where they fall in a pixel) and the q x q average of its footprint ((q^2 - 1)/(12 q^2) pixel^2); its
+footprint is sharpened by the separable three-tap filter that removes the excess (`pixel_average`),
+clamped at 0 and renormalised: where the footprint is smooth on the scale of a pixel the images are
+the flux averaged over pixels to second order - the spot's power, centroid and second moments right,
+whatever its width (without it a 1.5-pixel camera blur fits 2 % low on images of an independent
+Monte Carlo); where it is sharp (a pillbox sun without slope error) the clamp leaves part of the
+excess. A point sun without slope error, and the bilinear Monte Carlo, keep the tent: no
+non-negative deposit that moves with its hits is sharper than a tent by a fixed variance.
 
 Random numbers come from a cached pool of 2^20 exact sample rows; each (sun position, point)
 reads K consecutive rows from an offset drawn from the trace's seed, and its sun and slope
@@ -300,30 +300,26 @@ def _splat_bilinear(
             col = torch.addcmul(pos[1], t, axis[1])
             row = torch.addcmul(pos[2], t, axis[2])
             image = image + deposit(col.reshape(n_sun, -1), row.reshape(n_sun, -1), power.reshape(n_sun, -1),
-                                    target.resolution, sharpen=TENT_VARIANCE - CAMERA_PIXEL_VARIANCE)
+                                    target.resolution)
     return image
 
 
-def deposit(col: Tensor, row: Tensor, power: Tensor, resolution: tuple[int, int], sharpen: float = 0.0) -> Tensor:
+def deposit(col: Tensor, row: Tensor, power: Tensor, resolution: tuple[int, int]) -> Tensor:
     """Bilinear splat of weighted hits into images.
 
     Args:
         col, row: (B, N) padded pixel coordinates: (1, 1) is the centre of the top-left pixel.
         power: (B, N) weight of each hit (W).
         resolution: (H, W).
-        sharpen: variance (pixel^2 per axis) taken off the deposit by `pixel_average`, the border
-            ring included (0: the plain bilinear deposit).
 
     Returns:
         (B, H, W) power per pixel; hits beyond the border ring are dropped.
     """
     rows, cols = resolution
     n_images = col.shape[0]
-    # on a plane two pixels wider each side: the border ring at 1 and cols + 2 holds the tent of the
-    # pixels just outside, which `pixel_average` needs; hits beyond it are clamped onto the outer ring
-    stride, plane = cols + 5, (rows + 5) * (cols + 5)
-    col = (col + 1).clamp(0.0, cols + 3)
-    row = (row + 1).clamp(0.0, rows + 3)
+    stride, plane = cols + 3, (rows + 3) * (cols + 3)
+    col = col.clamp(0.0, cols + 1)
+    row = row.clamp(0.0, rows + 1)
     col0, row0 = col.floor(), row.floor()
     wc, wr = col - col0, row - row0
     base = torch.addcmul(col0, row0, torch.tensor(float(stride), dtype=col.dtype)).long()
@@ -336,19 +332,16 @@ def deposit(col: Tensor, row: Tensor, power: Tensor, resolution: tuple[int, int]
     flat = torch.zeros(n_images * plane, dtype=col.dtype, device=col.device)
     for shift, weight in ((0, pr0 - w01), (1, w01), (stride, pr1 - w11), (stride + 1, w11)):
         flat = flat.index_add(0, base + shift, weight)
-    plane = flat.view(n_images, rows + 5, cols + 5)[:, 1 : rows + 3, 1 : cols + 3]
-    if sharpen:
-        plane = pixel_average(plane, sharpen)
-    return plane[:, 1 : rows + 1, 1 : cols + 1]
+    return flat.view(n_images, rows + 3, cols + 3)[:, 1 : rows + 1, 1 : cols + 1]
 
 
 def pixel_average(images: Tensor, excess: float) -> Tensor:
-    """(B, H, W) images blurred beyond the camera's pixel average by `excess` pixel^2 of variance per
-    axis -> the same with it removed: each axis convolved with [-c, 1 + 2c, -c], c = excess / 2, which
+    """(B, H, W) images (or footprints) blurred beyond the camera's pixel average by `excess` pixel^2
+    of variance per axis -> the same with it removed: each axis convolved with [-c, 1 + 2c, -c], c = excess / 2, which
     keeps the power and the centroid and lowers the variance by exactly `excess` (the image's fourth and
     higher moments are right to leading order in the pixel size). Zero beyond the border."""
     c = excess / 2
-    padded = torch.nn.functional.pad(images, (1, 1, 1, 1))
+    padded = torch.nn.functional.pad(images, (1, 1, 1, 1))  # (B, H + 2, W + 2)
     rows = (1 + 2 * c) * padded[:, 1:-1] - c * (padded[:, :-2] + padded[:, 2:])
     return (1 + 2 * c) * rows[..., 1:-1] - c * (rows[..., :-2] + rows[..., 2:])
 
@@ -484,7 +477,7 @@ def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path
     pad_r, pad_c = rows // 2, cols // 2
     radius = support_radius(optics.sun, optics.slope_error)
     if radius == 0.0:  # a point sun without slope error: no spread
-        return deposit(col - pad_c, row - pad_r, power, target.resolution, TENT_VARIANCE - CAMERA_PIXEL_VARIANCE)
+        return deposit(col - pad_c, row - pad_r, power, target.resolution)
     # The footprint reaches at most support * path / cos(incidence on the target); rays farther
     # than that (and the bilinear pixel) beside the target add nothing to it, so the canvas is cut
     # down to that margin.
@@ -493,10 +486,7 @@ def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path
     widest = float(spread.detach().max()) if spread.numel() else 0.0
     jr, jc = min(rows + pad_r, math.ceil(widest / ph) + 1), min(cols + pad_c, math.ceil(widest / pw) + 1)
     mr, mc = min(pad_r, jr + 1), min(pad_c, jc + 1)
-    q = FOOTPRINT_SUPERSAMPLING
-    averaged = TENT_VARIANCE + (q * q - 1) / (12 * q * q)  # the central rays' deposit and the footprint's average
-    deposited = deposit(col - (pad_c - mc), row - (pad_r - mr), power, (rows + 2 * mr, cols + 2 * mc),
-                        averaged - CAMERA_PIXEL_VARIANCE)
+    deposited = deposit(col - (pad_c - mc), row - (pad_r - mr), power, (rows + 2 * mr, cols + 2 * mc))
     isotropic, remainder = slope.split(tilt, unit, float(optics.slope_error))
     pixel = unit.new_tensor(target.pixel_size).expand(len(unit), 2)
     kernel = unit.new_empty(len(unit), 2 * jr + 1, 2 * jc + 1)
@@ -505,14 +495,19 @@ def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path
         kernel[level] = footprint(density_lookup(optics.sun, float(value)), unit[level], path[level], pixel[level],
                                   (jr, jc))
     kernel = blurred(kernel, slope.in_cells(slope.on_plane(remainder, unit, path), pixel))
+    # The camera's pixel average, not the central rays' tent and the footprint's q x q average: the
+    # excess taken off the footprint (clamped at 0 where it is sharp, renormalised below).
+    q = FOOTPRINT_SUPERSAMPLING
+    averaged = TENT_VARIANCE + (q * q - 1) / (12 * q * q)
+    kernel = pixel_average(kernel, averaged - CAMERA_PIXEL_VARIANCE).clamp_min(0.0)
     # A footprint that lies wholly inside the kernel window carries exactly the ray's power;
     # renormalising removes the lattice error of sampling a hard-edged sun disc on pixels.
     inside = spread < min(jr * ph, jc * pw)
     total = kernel.sum((-2, -1)) * target.pixel_area
     kernel = torch.where(inside[:, None, None], kernel / total[:, None, None].clamp_min(1e-30), kernel)
-    # (B, rows + 2 mr + 2 jr, cols + 2 mc + 2 jc) centred on the canvas; not clamped at 0: the pixel
-    # average's side taps are negative, and the image stays linear in the deposit (facets add up)
-    flux = convolve(deposited, kernel)
+    # (B, rows + 2 mr + 2 jr, cols + 2 mc + 2 jc) centred on the canvas; both factors are >= 0, so
+    # the clamp only removes the FFT's round-off (which would otherwise leave tiny negative flux).
+    flux = convolve(deposited, kernel).clamp_min(0.0)
     return flux[:, jr + mr : jr + mr + rows, jc + mc : jc + mc + cols] * target.pixel_area
 
 

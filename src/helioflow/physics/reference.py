@@ -18,13 +18,13 @@ Per ray:
   4. the normal turned by an exact rotation through an isotropic N(0, slope_error) tilt about
      two tangent axes;
   5. the full reflection law r = d - 2 (d.n) n, the exact ray-plane intersection;
-  6. each ray's power into the pixel it hits (the camera's pixel average): flux = power / pixel area, with
+  6. a bilinear (tent) splat into the pixel centres: flux = power / pixel area, with
      power = dni * reflectivity * total mirror area * cos(incidence at the point) / n_rays
      (incidence between the central sun direction and the unperturbed surface normal), times
      the transmittance of the heliostat-to-target-centre slant range if one is given.
 
-Its expected image is the flux averaged over pixels, as a camera measures it; the fast tracer's
-equals it to second order in the pixel size (raytrace.pixel_average). Not differentiable.
+Its expected image equals the fast tracer's (both are the flux tent-averaged over pixels); only
+the Monte Carlo noise differs.
 """
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ def reference_trace(
         aim_point: (3,) ENU aim point; default the target's (Target.aim_point).
 
     Returns:
-        (H, W) float64 array, flux averaged over each pixel, rows top-first.
+        (H, W) float64 array, tent-averaged flux per pixel, rows top-first.
     """
     rng = np.random.default_rng(seed)
     torch_gen = torch.Generator().manual_seed(seed)
@@ -182,16 +182,20 @@ def reference_trace(
         hit = point + np.where(hit_ok, t, 0.0)[:, None] * reflected
         u, v = (hit - centre) @ right, (hit - centre) @ up
 
-        # 6. the pixel hit: pixel (i, j) spans [i, i + 1) x [j, j + 1) in these continuous indices.
-        col = (u + target.width / 2) / pw
-        row = (target.height / 2 - v) / ph
+        # 6. tent splat: continuous pixel indices, pixel (i, j) centred at (i, j).
+        col = (u + target.width / 2) / pw - 0.5
+        row = (target.height / 2 - v) / ph - 0.5
         power = np.where(hit_ok, power_per_ray * cos_incidence, 0.0)
         if optics.mirror_mask is not None:  # each ray's own point, incoming and reflected direction
             mask = optics.mirror_mask(MirrorPoints(*(torch.as_tensor(a) for a in (point_h, point, to_sun, reflected)),
                                                    aim, torch.as_tensor(sun)[None]))
             power = power * mask.double().numpy()
-        rr, cc = np.floor(row), np.floor(col)
-        inside = hit_ok & (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
-        pixel = (rr[inside] * cols + cc[inside]).astype(np.int64)
-        image += np.bincount(pixel, weights=power[inside], minlength=rows * cols)
+        c0, r0 = np.floor(col), np.floor(row)
+        fc, fr = col - c0, row - r0
+        corners = ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc), (1, 0, fr * (1 - fc)), (1, 1, fr * fc))
+        for dr, dc, weight in corners:
+            rr, cc = r0 + dr, c0 + dc
+            inside = hit_ok & (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+            pixel = (rr[inside] * cols + cc[inside]).astype(np.int64)
+            image += np.bincount(pixel, weights=(power * weight)[inside], minlength=rows * cols)
     return image.reshape(rows, cols) / (pw * ph)
