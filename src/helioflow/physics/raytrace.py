@@ -20,8 +20,8 @@ Splatting:
             (sun shape convolved with the slope error, see sun.radial_density): flux density
             power * f(theta) * cos(gamma) / r^2 at the target, theta the angle off the central ray.
             Per facet the central rays are deposited bilinearly and convolved (FFT) with the
-            pixel-averaged footprint, so both modes estimate the same image; noise-free with far
-            fewer rays. A slope error turns the ray by 2 sigma in the plane of incidence and by
+            pixel-averaged footprint: the bilinear mode's image, but with a camera's pixels (below);
+            noise-free with far fewer rays. A slope error turns the ray by 2 sigma in the plane of incidence and by
             2 sigma cos(incidence) across it: the footprint holds the isotropic part, a Gaussian
             blur the rest (physics/slope.py).
 
@@ -160,8 +160,9 @@ def trace(
             `sample_surface`'s order (facet, row from the top, column from the left).
 
     Returns:
-        (S, H, W) flux density (W/m^2) averaged over pixels (see the module docstring), differentiable in the
-        heliostats' tensors (and the launched power (S,) W, with_launched).
+        (S, H, W) flux density (W/m^2) averaged over pixels (kernel: as a camera's pixel, bilinear:
+        with a tent; module docstring), differentiable in the heliostats' tensors (and the launched
+        power (S,) W, with_launched).
     """
     if splat not in SPLATS:
         raise ValueError(f"splat must be one of {SPLATS}, got {splat!r}")
@@ -337,9 +338,10 @@ def deposit(col: Tensor, row: Tensor, power: Tensor, resolution: tuple[int, int]
 
 def pixel_average(images: Tensor, excess: float) -> Tensor:
     """(B, H, W) images (or footprints) blurred beyond the camera's pixel average by `excess` pixel^2
-    of variance per axis -> the same with it removed: each axis convolved with [-c, 1 + 2c, -c], c = excess / 2, which
-    keeps the power and the centroid and lowers the variance by exactly `excess` (the image's fourth and
-    higher moments are right to leading order in the pixel size). Zero beyond the border."""
+    of variance per axis -> the same with it removed: each axis convolved with [-c, 1 + 2c, -c],
+    c = excess / 2, which keeps the power and the centroid and lowers the variance by exactly `excess`
+    (higher moments right to leading order in the pixel size). Zero beyond the border; the side taps
+    are negative, so a sharp edge gets negative values beside it."""
     c = excess / 2
     padded = torch.nn.functional.pad(images, (1, 1, 1, 1))  # (B, H + 2, W + 2)
     rows = (1 + 2 * c) * padded[:, 1:-1] - c * (padded[:, :-2] + padded[:, 2:])

@@ -14,9 +14,10 @@ The kernel tracers convolve deposits with a footprint whose angular density, the
 with an isotropic Gaussian, is tabulated radially (sun.radial_density). So the slope error is split
 (`split`): an isotropic part sigma c goes into the table, c the group's cos(theta_i) rounded down to
 a multiple of 1/LEVELS (a group's own, so that a result does not depend on how rays are batched,
-and few tables), and the remainder sigma^2 (G - 4 c^2 (I - r r^T)), positive semi-definite, is blurred (raytrace.blurred) after mapping it onto the target plane (`on_plane`). For a Gaussian slope
-error this is exact; each group of rays takes the mean G of its rays, as it takes their mean ray
-for the footprint.
+and few tables), and the remainder sigma^2 (G - 4 c^2 (I - r r^T)), positive semi-definite, is
+blurred (raytrace.blurred) after mapping it onto the target plane (`on_plane`). For a Gaussian
+slope error this is exact; each group of rays takes the mean G of its rays, as it takes their mean
+ray for the footprint. The field tracer keeps the isotropic 2 sigma blur (docs/physics.md).
 """
 
 from __future__ import annotations
