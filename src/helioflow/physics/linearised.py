@@ -35,7 +35,6 @@ from helioflow.physics.raytrace import (
     mirror_points,
     padded_canvas,
     splat_footprints,
-    tilt_spread,
 )
 from helioflow.physics.target import Target
 
@@ -59,9 +58,8 @@ class LinearisedTrace:
         cells_per_side: cells per facet side (P = cells_per_side^2).
         power: (S, F, P) power each cell reflects towards the target per unit DNI, reflectivity and
             transmittance (W per W/m^2), 0 for cells facing away.
-        unit, path, spread: (S, 3) the power-weighted mean ray on the target's (normal, right, up),
-            (S,) its length (m) and (S, 3, 3) the rays' mean slope.tilt_covariance: where and how
-            each image's footprint is evaluated.
+        unit, path: (S, 3) the power-weighted mean ray on the target's (normal, right, up) and (S,)
+            its length (m): where each image's footprint is evaluated.
         distance: the heliostat-target distance (m) a transmittance is evaluated at.
         points: the cells as a mirror mask sees them at the linearisation point (shapes (S, F * P, 3)).
         at: the effective error tensors ({"tracking": (5,), "canting": (F, 2), "surface":
@@ -76,7 +74,6 @@ class LinearisedTrace:
     power: Tensor
     unit: Tensor
     path: Tensor
-    spread: Tensor
     distance: float
     at: dict
     target: Target
@@ -111,8 +108,8 @@ class LinearisedTrace:
             power = power * torch.broadcast_to(weight, (n_sun, weight.shape[-1])).reshape(power.shape)
         power = power[:, index].reshape(n_sun, -1)
         moved = moved.reshape(n_sun, -1, 2)
-        flux = splat_footprints(moved[..., 0], moved[..., 1], power, self.unit, self.path, self.spread,
-                                self.target, optics) / self.target.pixel_area
+        flux = splat_footprints(moved[..., 0], moved[..., 1], power, self.unit, self.path, self.target,
+                                optics) / self.target.pixel_area
         return (flux, power.sum(-1)) if with_launched else flux
 
 
@@ -135,8 +132,8 @@ def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: 
     n_facets, g = h.n_facets, cells_per_side
 
     def traced(values: dict, local: int | None = None, step: float = 0.0) -> tuple[Tensor, ...]:
-        """Hits (S, F, P, 2), power (S, F, P), central-ray directions (S, F * P, 3), lengths
-        (S, F * P) and slope spreads (S, F * P, 3, 3) (raytrace.tilt_spread) with the errors at `values`; `local` 0, 1, 2: every cell moved along its normal
+        """Hits (S, F, P, 2), power (S, F, P), central-ray directions (S, F * P, 3) and lengths
+        (S, F * P) with the errors at `values`; `local` 0, 1, 2: every cell moved along its normal
         by `step` mm, or its slope along the facet's right or up axis raised by `step` mm/m."""
         moved = replace(h, tracking_error=values["tracking"] * 1e-3, canting_error=values["canting"] * 1e-3,
                         control_heights=values["surface"] * 1e-3)
@@ -151,10 +148,10 @@ def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: 
         rays = _project(moved, samples, sun, t64, t64.aim_point, Optics(sun=None, dni=1.0))
         col, row, power, unit, path = central_hits(rays, canvas)
         shape = (len(sun), n_facets, -1)
-        return torch.stack((col, row), -1).reshape(*shape, 2), power.reshape(shape), unit, path, tilt_spread(rays)
+        return torch.stack((col, row), -1).reshape(*shape, 2), power.reshape(shape), unit, path
 
-    hits, power, unit, path, spread = traced(base)
-    mean_unit, mean_path, mean_spread = mean_rays(unit, path, power.reshape(len(sun), -1), 1, spread)
+    hits, power, unit, path = traced(base)
+    mean_unit, mean_path = mean_rays(unit, path, power.reshape(len(sun), -1), 1)
 
     def derivative(key: str, entry: int) -> Tensor:
         moved = []
@@ -180,5 +177,5 @@ def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: 
     points = MirrorPoints(*(back(x) for x in (points.local, points.world, points.to_sun, points.reflected,
                                                 points.aim, points.sun)))
     return LinearisedTrace(back(hits), derivatives, back(h.facet_size), g, back(power), back(mean_unit),
-                           back(mean_path), back(mean_spread), float((target.center - heliostat.position).norm()),
+                           back(mean_path), float((target.center - heliostat.position).norm()),
                            {k: back(v) for k, v in at.items()}, target, points)

@@ -20,21 +20,9 @@ Splatting:
             (sun shape convolved with the slope error, see sun.radial_density): flux density
             power * f(theta) * cos(gamma) / r^2 at the target, theta the angle off the central ray.
             Per facet the central rays are deposited bilinearly and convolved (FFT) with the
-            pixel-averaged footprint: the bilinear mode's image, but with a camera's pixels (below);
-            noise-free with far fewer rays. A slope error turns the ray by 2 sigma in the plane of incidence and by
-            2 sigma cos(incidence) across it: the footprint holds the isotropic part, a Gaussian
-            blur the rest (physics/slope.py).
-
-Pixels: a camera pixel integrates the flux over its square, a box of variance pixel^2/12 per axis.
-The kernel splat blurs more, by the tent of its central rays' deposit (pixel^2/6, averaged over
-where they fall in a pixel) and the q x q average of its footprint ((q^2 - 1)/(12 q^2) pixel^2); its
-footprint is sharpened by the separable three-tap filter that removes the excess (`pixel_average`),
-clamped at 0 and renormalised: where the footprint is smooth on the scale of a pixel the images are
-the flux averaged over pixels to second order - the spot's power, centroid and second moments right,
-whatever its width (without it a 1.5-pixel camera blur fits 2 % low on images of an independent
-Monte Carlo); where it is sharp (a pillbox sun without slope error) the clamp leaves part of the
-excess. A point sun without slope error, and the bilinear Monte Carlo, keep the tent: no
-non-negative deposit that moves with its hits is sharper than a tent by a fixed variance.
+            pixel-averaged footprint, so both modes estimate the same image; noise-free with far
+            fewer rays. Slope error enters isotropically (2 sigma), which overestimates the spread
+            across the plane of incidence by 1/cos(incidence) at oblique incidence.
 
 Random numbers come from a cached pool of 2^20 exact sample rows; each (sun position, point)
 reads K consecutive rows from an offset drawn from the trace's seed, and its sun and slope
@@ -53,7 +41,6 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor
 
-from helioflow.physics import slope
 from helioflow.physics.geometry import normalize, plane_axes, reflect, sun_vector
 from helioflow.physics.heliostat import Heliostat, orientation, sample_surface
 from helioflow.physics.sun import SunShape, radial_density, sample_deviations, support_radius
@@ -63,8 +50,6 @@ SPLATS = ("bilinear", "kernel")
 POOL_SIZE = 2**20
 POOL_SEED = 20240815
 FOOTPRINT_SUPERSAMPLING = 2  # footprints are box-averaged over q x q points per pixel
-CAMERA_PIXEL_VARIANCE = 1 / 12  # pixel^2 per axis: a camera pixel averages the flux over its square
-TENT_VARIANCE = 1 / 6  # pixel^2 per axis: a bilinear deposit, averaged over where a hit falls in its pixel
 
 
 @dataclass(frozen=True)
@@ -160,9 +145,8 @@ def trace(
             `sample_surface`'s order (facet, row from the top, column from the left).
 
     Returns:
-        (S, H, W) flux density (W/m^2) averaged over pixels (kernel: as a camera's pixel, bilinear:
-        with a tent; module docstring), differentiable in the heliostats' tensors (and the launched
-        power (S,) W, with_launched).
+        (S, H, W) flux density (W/m^2), tent-averaged over pixels, differentiable in the
+        heliostats' tensors (and the launched power (S,) W, with_launched).
     """
     if splat not in SPLATS:
         raise ValueError(f"splat must be one of {SPLATS}, got {splat!r}")
@@ -336,18 +320,6 @@ def deposit(col: Tensor, row: Tensor, power: Tensor, resolution: tuple[int, int]
     return flat.view(n_images, rows + 3, cols + 3)[:, 1 : rows + 1, 1 : cols + 1]
 
 
-def pixel_average(images: Tensor, excess: float) -> Tensor:
-    """(B, H, W) images (or footprints) blurred beyond the camera's pixel average by `excess` pixel^2
-    of variance per axis -> the same with it removed: each axis convolved with [-c, 1 + 2c, -c],
-    c = excess / 2, which keeps the power and the centroid and lowers the variance by exactly `excess`
-    (higher moments right to leading order in the pixel size). Zero beyond the border; the side taps
-    are negative, so a sharp edge gets negative values beside it."""
-    c = excess / 2
-    padded = torch.nn.functional.pad(images, (1, 1, 1, 1))  # (B, H + 2, W + 2)
-    rows = (1 + 2 * c) * padded[:, 1:-1] - c * (padded[:, :-2] + padded[:, 2:])
-    return (1 + 2 * c) * rows[..., 1:-1] - c * (rows[..., :-2] + rows[..., 2:])
-
-
 def _pixel_coefficients(c: _Rays, target: Target) -> tuple[list[dict], list[dict]]:
     """Ray coefficients rescaled so that the hit lands in padded pixel coordinates.
 
@@ -397,7 +369,7 @@ def _affine(coeff: dict, draws: dict, sl: slice, terms: tuple[int, ...]) -> Tens
 
 
 def _splat_kernel(c: _Rays, target: Target, optics: Optics, n_facets: int) -> Tensor:
-    """Analytic footprints of the cells' central rays: (S, H, W) power per pixel (W).
+    """Analytic footprints of the cells' central rays: (S, H, W) tent-averaged power per pixel (W).
 
     The footprint of a ray, power * f(theta) * cos(gamma) / r^2, changes little across one facet
     (its direction and path length vary by a few mrad and percent), so each facet's central rays
@@ -407,10 +379,10 @@ def _splat_kernel(c: _Rays, target: Target, optics: Optics, n_facets: int) -> Te
     """
     n_sun = c.power.shape[0]
     col, row, power, unit, path = central_hits(c, padded_canvas(target))
-    unit, path, spread = mean_rays(unit, path, power, n_facets, tilt_spread(c))
+    unit, path = mean_rays(unit, path, power, n_facets)
     groups = n_sun * n_facets
     flux = splat_footprints(col.reshape(groups, -1), row.reshape(groups, -1), power.reshape(groups, -1),
-                            unit, path, spread, target, optics)
+                            unit, path, target, optics)
     return flux.reshape(n_sun, n_facets, *target.resolution).sum(1)
 
 
@@ -437,13 +409,11 @@ def padded_canvas(target: Target) -> Target:
                    height=target.height * (rows + 2 * pad_r) / rows, resolution=(rows + 2 * pad_r, cols + 2 * pad_c))
 
 
-def mean_rays(unit: Tensor, path: Tensor, power: Tensor, n_groups: int, spread: Tensor
-              ) -> tuple[Tensor, Tensor, Tensor]:
+def mean_rays(unit: Tensor, path: Tensor, power: Tensor, n_groups: int) -> tuple[Tensor, Tensor]:
     """The power-weighted mean ray of each group of points: unit (S, P, 3) central-ray directions on
-    the target's (normal, right, up), path (S, P) lengths (m), power (S, P) (W) and spread (S, P, 3, 3)
-    (`tilt_spread`), the P points in `n_groups` equal consecutive groups -> (S * n_groups, 3) unit
-    directions, (S * n_groups,) paths, (S * n_groups, 3, 3) mean spreads. A group without power (all
-    its points masked or facing away) gets its points' plain mean."""
+    the target's (normal, right, up), path (S, P) lengths (m) and power (S, P) (W), the P points in
+    `n_groups` equal consecutive groups -> (S * n_groups, 3) unit directions, (S * n_groups,) paths.
+    A group without power (all its points masked or facing away) gets its points' plain mean."""
     n_sun = unit.shape[0]
     weight = power.reshape(n_sun, n_groups, -1)
     dark = weight.sum(-1, keepdim=True) <= 0.0  # a group that sends nothing (masked): its plain mean ray
@@ -451,29 +421,20 @@ def mean_rays(unit: Tensor, path: Tensor, power: Tensor, n_groups: int, spread: 
     weight = weight / weight.sum(-1, keepdim=True)
     mean = (weight[..., None] * unit.reshape(n_sun, n_groups, -1, 3)).sum(2)
     mean_path = (weight * path.reshape(n_sun, n_groups, -1)).sum(-1)
-    mean_spread = (weight[..., None, None] * spread.reshape(n_sun, n_groups, -1, 3, 3)).sum(2)
-    return normalize(mean).reshape(-1, 3), mean_path.reshape(-1), mean_spread.reshape(-1, 3, 3)
+    return normalize(mean).reshape(-1, 3), mean_path.reshape(-1)
 
 
-def tilt_spread(c: _Rays) -> Tensor:
-    """(S, P, 3, 3) slope.tilt_covariance of every central ray on the target's (normal, right, up),
-    from the reflection law's derivatives g_1, g_2 that the rays carry."""
-    g = c.along[:, :, 3:5, :]  # (S, P, 2, 3)
-    return torch.einsum("spki,spkj->spij", g, g)
-
-
-def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path: Tensor, tilt: Tensor,
-                     target: Target, optics: Optics) -> Tensor:
+def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path: Tensor, target: Target,
+                     optics: Optics) -> Tensor:
     """Central rays of B groups deposited bilinearly on the padded canvas (`padded_canvas`) and
-    convolved with the footprint of each group's mean ray: (B, H, W) power per pixel (W) of the
-    target, averaged over pixels (module docstring). The slope error blurs less across the plane of
-    incidence (physics/slope.py): the footprint holds its isotropic part and is blurred by the rest.
+    convolved with the footprint of each group's mean ray: (B, H, W) tent-averaged power per
+    pixel (W) of the target.
 
     Args:
         col, row: (B, N) padded pixel coordinates on the canvas (see `deposit`).
         power: (B, N) power of each ray (W).
-        unit, path, tilt: (B, 3) mean ray direction on the target's (normal, right, up), (B,) its
-            length (m) and (B, 3, 3) the rays' mean slope.tilt_covariance (`mean_rays`).
+        unit, path: (B, 3) mean ray direction on the target's (normal, right, up) and (B,) its
+            length (m) (`mean_rays`).
     """
     rows, cols = target.resolution
     pad_r, pad_c = rows // 2, cols // 2
@@ -489,19 +450,8 @@ def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path
     jr, jc = min(rows + pad_r, math.ceil(widest / ph) + 1), min(cols + pad_c, math.ceil(widest / pw) + 1)
     mr, mc = min(pad_r, jr + 1), min(pad_c, jc + 1)
     deposited = deposit(col - (pad_c - mc), row - (pad_r - mr), power, (rows + 2 * mr, cols + 2 * mc))
-    isotropic, remainder = slope.split(tilt, unit, float(optics.slope_error))
-    pixel = unit.new_tensor(target.pixel_size).expand(len(unit), 2)
-    kernel = unit.new_empty(len(unit), 2 * jr + 1, 2 * jc + 1)
-    for value in isotropic.unique():  # one density table per level of the isotropic part
-        level = isotropic == value
-        kernel[level] = footprint(density_lookup(optics.sun, float(value)), unit[level], path[level], pixel[level],
-                                  (jr, jc))
-    kernel = blurred(kernel, slope.in_cells(slope.on_plane(remainder, unit, path), pixel))
-    # The camera's pixel average, not the central rays' tent and the footprint's q x q average: the
-    # excess taken off the footprint (clamped at 0 where it is sharp, renormalised below).
-    q = FOOTPRINT_SUPERSAMPLING
-    averaged = TENT_VARIANCE + (q * q - 1) / (12 * q * q)
-    kernel = pixel_average(kernel, averaged - CAMERA_PIXEL_VARIANCE).clamp_min(0.0)
+    density = density_lookup(optics.sun, float(optics.slope_error))
+    kernel = footprint(density, unit, path, unit.new_tensor(target.pixel_size).expand(len(unit), 2), (jr, jc))
     # A footprint that lies wholly inside the kernel window carries exactly the ray's power;
     # renormalising removes the lattice error of sampling a hard-edged sun disc on pixels.
     inside = spread < min(jr * ph, jc * pw)
@@ -513,7 +463,7 @@ def splat_footprints(col: Tensor, row: Tensor, power: Tensor, unit: Tensor, path
     return flux[:, jr + mr : jr + mr + rows, jc + mc : jc + mc + cols] * target.pixel_area
 
 
-@functools.lru_cache(maxsize=64)
+@functools.lru_cache(maxsize=8)
 def _density_table(sun: SunShape, slope_error: float, n: int = 8192) -> tuple[Tensor, float]:
     """(n,) float64 values of the beam-spread density (1/sr) on a uniform angle grid from 0 to the
     support radius, and the grid step (rad); cached per sun shape and slope error."""
@@ -578,29 +528,6 @@ def convolve(images: Tensor, kernels: Tensor) -> Tensor:
     size = tuple(_fft_size(n) for n in full)
     spectrum = torch.fft.rfft2(images, s=size) * torch.fft.rfft2(kernels, s=size)
     return torch.fft.irfft2(spectrum, s=size)[..., : full[0], : full[1]]
-
-
-def blurred(kernels: Tensor, covariance: Tensor) -> Tensor:
-    """(B, Hk, Wk) kernels convolved with Gaussians of covariance (B, 2, 2) in (row, column) cells,
-    same shape (what the blur moves beyond the kernels' extent is dropped). Each Gaussian is sampled at
-    the cell centres within 4 sigma of its own widest axis and normalised there, so it is never negative,
-    keeps the power and does not depend on the others in the batch (a Gaussian much narrower than a
-    cell stays a single cell)."""
-    widest = covariance.diagonal(dim1=-2, dim2=-1).amax(-1).clamp_min(0.0)  # (B,) cells^2
-    own = torch.ceil(4 * widest.sqrt())  # (B,) each one's reach in cells
-    reach = int(own.max()) if len(own) else 0
-    if reach == 0:
-        return kernels
-    offset = torch.arange(-reach, reach + 1, dtype=kernels.dtype, device=kernels.device)
-    d = torch.stack(torch.meshgrid(offset, offset, indexing="ij"), -1)  # (K, K, 2) row, column
-    eye = torch.eye(2, dtype=kernels.dtype, device=kernels.device)
-    precision = torch.linalg.inv(covariance.to(kernels.dtype) + 1e-6 * eye)  # a zero variance: a single cell
-    gaussian = torch.exp(-0.5 * torch.einsum("rci,bij,rcj->brc", d, precision, d))
-    within = (d.abs().amax(-1) <= own.to(kernels.dtype)[:, None, None])  # (B, K, K)
-    gaussian = torch.where(within, gaussian, 0.0)
-    gaussian = gaussian / gaussian.sum((-2, -1), keepdim=True)
-    full = convolve(kernels, gaussian).clamp_min(0.0)  # the clamp removes the FFT's round-off
-    return full[:, reach:reach + kernels.shape[-2], reach:reach + kernels.shape[-1]]
 
 
 def _fft_size(n: int) -> int:
