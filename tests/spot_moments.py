@@ -53,9 +53,13 @@ def main() -> None:
         heliostat = read_heliostat(Path(tmp) / "aa39.h5").ideal().to("cpu", torch.float32)
     suns = calibration_suns(args.suns, 0)
     scene = Scene(world.target)
-    theirs = [moments(resample_area(sum(trace_image(scene, world, az, el, 2_000_000, np.random.default_rng(k))
-                                        for k in range(4)), (64, 64))) for az, el in suns]
-    print("cells  sun   model col / row px^2   Monte Carlo col / row   model - Monte Carlo")
+    theirs, noise = [], []  # per sun: the 4 draws' summed image's variances, and their standard error
+    for az, el in suns:
+        draws = [resample_area(trace_image(scene, world, az, el, 2_000_000, np.random.default_rng(k)), (64, 64))
+                 for k in range(4)]
+        theirs.append(moments(sum(draws)))
+        noise.append(np.std([moments(d) for d in draws], axis=0, ddof=1) / 2)  # over 4 draws: / sqrt(4)
+    print("cells  sun   model col / row px^2   Monte Carlo col / row   model - Monte Carlo  (+- Monte Carlo noise)")
     for cells in args.cells:
         model = dataset_scene(heliostat, ds.attrs, (64, 64), cells, 0, False)
         for i, (az, el) in enumerate(suns):
@@ -63,7 +67,8 @@ def main() -> None:
                 image = model.simulate(effects, {}, torch.tensor([az]), torch.tensor([el]))[0].double().numpy()
             ours = moments(image)
             print(f"{cells:5d} {i:4d}   {ours[0]:8.3f} {ours[1]:8.3f}        {theirs[i][0]:8.3f} {theirs[i][1]:8.3f}"
-                  f"        {ours[0] - theirs[i][0]:+.3f} {ours[1] - theirs[i][1]:+.3f}")
+                  f"        {ours[0] - theirs[i][0]:+.3f} {ours[1] - theirs[i][1]:+.3f}"
+                  f"  (+- {noise[i][0]:.3f} {noise[i][1]:.3f})")
 
 
 if __name__ == "__main__":
