@@ -380,11 +380,17 @@ def write_plant(folder: Path, worlds: dict, n_images: int, rays: int, seed: int)
 
 PLANT_DEMO = {"n": 6, "seed": 11, "n_images": 16, "rays": 500_000}  # workflow/variants/plant_demo.yaml
 
-if __name__ == "__main__":  # python tests/paint_world.py examples/paint_world | plant examples/plant_world
-    import sys
+if __name__ == "__main__":  # python tests/paint_world.py examples/paint_world | plant examples/plant_world [--heliostats N ...]
+    import argparse
 
-    if sys.argv[1] == "plant":
-        write_plant(Path(sys.argv[2]), plant_worlds(PLANT_DEMO["n"], PLANT_DEMO["seed"]), PLANT_DEMO["n_images"],
-                    PLANT_DEMO["rays"], PLANT_DEMO["seed"])
+    ap = argparse.ArgumentParser(description="Write the PAINT demo folder, or (first argument `plant`) a plant's PAINT directory.")
+    ap.add_argument("what", nargs="+", metavar="FOLDER | plant FOLDER")
+    ap.add_argument("--heliostats", type=int, default=PLANT_DEMO["n"], help="a plant's heliostats (default: the demo's)")
+    ap.add_argument("--images", type=int, default=PLANT_DEMO["n_images"], help="calibration images per heliostat")
+    ap.add_argument("--rays", type=int, default=PLANT_DEMO["rays"], help="Monte Carlo rays per image")
+    ap.add_argument("--seed", type=int, default=PLANT_DEMO["seed"], help="the seed the plant is drawn with")
+    args = ap.parse_args()
+    if args.what[0] == "plant":
+        write_plant(Path(args.what[1]), plant_worlds(args.heliostats, args.seed), args.images, args.rays, args.seed)
     else:
-        write_paint_folder(Path(sys.argv[1]), DEMO, n_images=40, rays=1_000_000, seed=7)
+        write_paint_folder(Path(args.what[0]), DEMO, n_images=40, rays=1_000_000, seed=7)

@@ -46,8 +46,9 @@ def main() -> None:
     ap.add_argument("--heliostats", type=int, default=6)
     ap.add_argument("--images", type=int, default=16)
     args = ap.parse_args()
-    print("| seed | shared changes | camera blur (px, true 1.5) | (blur - true) / sigma | plant held-out error: model -> shared | s |")
-    print("|---|---|---|---|---|---|")
+    print("| seed | shared changes | camera blur (px, true 1.5) | (blur - true) / sigma | heliostats kept by the level "
+          "| plant held-out error: model -> shared | s |")
+    print("|---|---|---|---|---|---|---|")
     for seed in args.seeds:
         start = time.time()
         with tempfile.TemporaryDirectory() as tmp:
@@ -56,7 +57,8 @@ def main() -> None:
         blur = values.get("camera.blur_px")
         words = "-" if blur is None else f"{blur['value']:.3f} +- {blur['sigma']:.3f}"
         pull = "-" if blur is None else f"{(blur['value'] - TRUE_BLUR_PX) / blur['sigma']:+.1f}"
-        print(f"| {seed} | {', '.join(out['changes']) or 'none'} | {words} | {pull} | "
+        kept = "-" if blur is None else f"{sum(a['kept'] for a in blur['alone'].values())} of {len(blur['alone'])}"
+        print(f"| {seed} | {', '.join(out['changes']) or 'none'} | {words} | {pull} | {kept} | "
               f"{out['heldout_error']['model']:.4f} -> {out['heldout_error']['shared']:.4f} | {time.time() - start:.0f} |",
               flush=True)
 

@@ -13,7 +13,7 @@ import pytest
 from paint_world import plant_worlds, write_plant
 
 from helioflow.data.paint import import_paint
-from helioflow.diagnosis.shared import plant_shared, with_plant
+from helioflow.diagnosis.shared import CLIP, Level, plant_shared, with_plant
 from helioflow.errors import DataError
 from helioflow.workflow import SHARED_DEFAULTS
 
@@ -62,6 +62,27 @@ def test_every_heliostat_takes_the_shared_effects_at_the_plant_values(plant):
     assert effects["camera"] == shared["effects"]["camera"] and effects["sunshape"] == shared["effects"]["sunshape"]
     with pytest.raises(DataError, match="no shared effects of plant 'elsewhere'"):
         with_plant(own, {"path": str(path), "plant": "elsewhere"})
+
+
+def test_the_shared_level_is_where_the_heliostats_agree_from_below():
+    """Heliostats whose own effects widen their spots sit above the shared width; those without agree
+    on it within their sigma. Two thirds widened: a median would land inside the widened ones."""
+    rng = np.random.default_rng(0)
+    sigma = rng.uniform(0.03, 0.05, 30)
+    widened = np.arange(30) % 3 != 0
+    values = 1.5 + rng.normal(0.0, sigma) + widened * rng.uniform(0.1, 0.3, 30)
+    level = Level.of(values.tolist(), sigma.tolist())
+    assert np.median(values) > 1.6  # the median: a widened heliostat's value
+    assert abs(level.value - 1.5) <= min(2 * level.sigma, 0.2 * (np.median(values) - 1.5)), level
+    assert level.sigma <= 0.05  # and says how well the plant knows it (bootstrap over the heliostats)
+    assert sum(not k for k, w in zip(level.kept, widened) if w) >= widened.sum() / 2  # most widened ones set aside
+    assert sum(level.kept) >= 10 and all(k for k, w in zip(level.kept, widened) if not w)  # no clean one set aside
+    assert all(v - level.value <= CLIP * s for v, s, k in zip(values, sigma, level.kept) if k)
+    # all agree (none widened): the inverse-variance mean of all, its sigma the textbook one
+    same = Level.of([1.5, 1.52, 1.48], [0.02, 0.02, 0.02])
+    assert same.kept == [True] * 3 and same.value == pytest.approx(1.5) and same.sigma >= 0.02 / 3 ** 0.5
+    # a value without a sigma (not determined) gets the median sigma, not infinite weight
+    assert Level.of([1.5, 1.5, 2.0], [0.02, float("nan"), 0.02]).value == pytest.approx(1.5)
 
 
 def test_a_missing_plant_fit_is_one_clear_error(tmp_path):

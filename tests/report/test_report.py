@@ -275,9 +275,10 @@ def test_recovery_files_are_the_synthetic_datasets_drt_is_scored_on():
 
 
 def test_the_plant_section_shows_what_the_heliostats_share(tmp_path):
-    blur = {"value": 1.5574, "sigma": 0.08576, "alone_chi2_per_dof": 8.098,
-            "alone": {"P000": {"value": 1.4159, "sigma": 0.04827}, "P001": {"value": 1.678, "sigma": 0.04381}}}
-    shared = {"plant": {"verdict": "Shared by the 2 heliostats fitted: camera (camera.blur_px = 1.557 +- 0.086).",
+    blur = {"value": 1.4159, "sigma": 0.04827, "kept_chi2_per_dof": 1.0,
+            "alone": {"P000": {"value": 1.4159, "sigma": 0.04827, "kept": True},
+                      "P001": {"value": 1.678, "sigma": 0.04381, "kept": False}}}
+    shared = {"plant": {"verdict": "Shared by the 2 heliostats fitted: camera (camera.blur_px = 1.416 +- 0.048).",
                         "shared": [{"effect": "camera", "values": {"camera.blur_px": blur}},
                                    {"effect": "sunshape", "values": {}}],
                         "tried": [{"change": "camera", "heldout_error": 0.0212, "relative_reduction": 0.94,
@@ -287,8 +288,9 @@ def test_the_plant_section_shows_what_the_heliostats_share(tmp_path):
     path = tmp_path / "shared.json"
     path.write_text(json.dumps(shared))
     text = _section(build_report({"plant_shared": [str(path)]}, None, "t"), "The plant")
-    assert "<h3>Shared by the heliostats of plant</h3>" in text and "camera (camera.blur_px = 1.557" in text
-    assert "<td>camera.blur_px</td><td>1.5574 ± 0.09</td><td>P000 1.416 ± 0.05, P001 1.678 ± 0.04</td>" in text
+    assert "<h3>Shared by the heliostats of plant</h3>" in text and "camera (camera.blur_px = 1.416" in text
+    assert ("<td>camera.blur_px</td><td>1.4159 ± 0.05</td><td>P000 1.416 ± 0.05, P001 1.678 ± 0.04 (own widening)</td>"
+            "<td class=\"num\">1.00</td>") in text
     assert "<td>sunshape: buie</td>" in text and ">32 %<" in text
     path.write_text(json.dumps({"plant": {"shared": []}}))
     with pytest.raises(DataError, match="shared.json: not a plant fit"):
