@@ -380,12 +380,13 @@ def write_plant(folder: Path, worlds: dict, n_images: int, rays: int, seed: int)
 
 PLANT_DEMO = {"n": 6, "seed": 11, "n_images": 16, "rays": 500_000}  # workflow/variants/plant_demo.yaml
 
-if __name__ == "__main__":  # python tests/paint_world.py examples/paint_world | plant examples/plant_world [--heliostats N ...]
+if __name__ == "__main__":  # python tests/paint_world.py examples/paint_world | plant DIR [--heliostats N ...]
     import argparse
 
-    ap = argparse.ArgumentParser(description="Write the PAINT demo folder, or (first argument `plant`) a plant's PAINT directory.")
+    ap = argparse.ArgumentParser(description="Write the PAINT demo folder, or (first argument `plant`) a plant's "
+                                             "PAINT directory (the demo's: examples/plant_world).")
     ap.add_argument("what", nargs="+", metavar="FOLDER | plant FOLDER")
-    ap.add_argument("--heliostats", type=int, default=PLANT_DEMO["n"], help="a plant's heliostats (default: the demo's)")
+    ap.add_argument("--heliostats", type=int, default=PLANT_DEMO["n"], help="heliostats (default: the demo's)")
     ap.add_argument("--images", type=int, default=PLANT_DEMO["n_images"], help="calibration images per heliostat")
     ap.add_argument("--rays", type=int, default=PLANT_DEMO["rays"], help="Monte Carlo rays per image")
     ap.add_argument("--seed", type=int, default=PLANT_DEMO["seed"], help="the seed the plant is drawn with")

@@ -43,7 +43,8 @@ def main() -> None:
                 median.append(np.median(values) - TRUE)
                 reported.append(level.sigma)
             error, reported, plain = map(np.asarray, (error, reported, plain))
-            print(f"| {n} | {clean:.2f} | {np.mean(median):+.3f} | {error.mean():+.3f} | {np.sqrt((error ** 2).mean()):.3f} | "
+            rms = np.sqrt((error ** 2).mean())
+            print(f"| {n} | {clean:.2f} | {np.mean(median):+.3f} | {error.mean():+.3f} | {rms:.3f} | "
                   f"{(np.abs(error) <= 1.96 * reported).mean():.2f} | {np.median(reported):.3f} | "
                   f"{(np.abs(error) <= 1.96 * plain).mean():.2f} | {np.median(plain):.3f} |")
 

@@ -34,8 +34,9 @@ a slope error, a canting or a tracking error is each heliostat's own. The plant 
 6. Each shared value carries its sigma: that of the kept heliostats' inverse-variance mean, times
    the square root of their chi^2 per degree of freedom where it exceeds 1 (they disagree beyond
    their own sigma), or, where larger, the spread of the level over the heliostats resampled (a
-   bootstrap: which heliostats carry a widening of their own moves it more than their noise). Beside it, what each heliostat alone makes of it (its own fit with the value
-   free: the confounded answer one heliostat gets) and whether the level kept it.
+   bootstrap: which heliostats carry a widening of their own moves it more than their noise).
+   Beside it, what each heliostat alone makes of it (its own fit with the value free: the
+   confounded answer one heliostat gets) and whether the level kept it.
 
 Every heliostat's physics model and diagnosis then take the shared effects at these values
 (`shared_effects`) and try no change to a shared effect themselves (workflow: plant.shared).

@@ -267,15 +267,15 @@ def _shared_part(path: str) -> str:
     parts = []
     for plant, entry in data.items():
         values = [[name, f"{fixed(v['value'], 4)} ± {fixed(v['sigma'], 2)}",
-                   ", ".join(f"{h} {fixed(a['value'], 3)} ± {fixed(a['sigma'], 2)}{'' if a['kept'] else ' (own widening)'}"
-                             for h, a in v["alone"].items()),
+                   ", ".join(f"{h} {fixed(a['value'], 3)} ± {fixed(a['sigma'], 2)}"
+                             + ("" if a["kept"] else " (own widening)") for h, a in v["alone"].items()),
                    fixed(v["kept_chi2_per_dof"], 2)]
                   for s in entry.get("shared", []) for name, v in s.get("values", {}).items()]
         tried = [[t["change"], fixed(t["heldout_error"], 4), f"{100 * t['relative_reduction']:.0f} %",
                   "yes" if t["meaningful"] else "no"] for t in entry.get("tried", [])]
         parts += [f"<h3>Shared by the heliostats of {esc(plant)}</h3>", f"<p>{esc(entry['verdict'])}</p>",
-                  table(["shared value", "plant fit ± sigma", "each heliostat alone ± sigma", "chi^2 / dof of those kept"],
-                        values) if values else "",
+                  table(["shared value", "plant fit ± sigma", "each heliostat alone ± sigma",
+                         "chi^2 / dof of those kept"], values) if values else "",
                   table(["shared change tried", "plant held-out error", "cut", "counts"], tried),
                   download(path, "application/json")]
     return "\n".join(parts)
