@@ -865,7 +865,7 @@ def plant_table_spec(config: dict) -> dict:
                            for plant, members in plant_groups(config).items() for d in members]}
 
 
-SHARED_DEFAULTS = {"heliostats": 8, "fit_images": 12, "heldout_images": 16, "fit_steps": 30, "cells_per_side": 16,
+SHARED_DEFAULTS = {"heliostats": 30, "fit_images": 12, "heldout_images": 16, "fit_steps": 30, "cells_per_side": 16,
                    "fit_rays": 50_000}
 
 

@@ -108,7 +108,7 @@ def test_every_heliostat_of_a_plant_takes_the_plant_fits_shared_effects():
     config["networks"] = {"drt": {}, "gan": {}}
     spec = plant_shared_spec(config)
     assert [h["heliostat"] for h in spec["plants"]["jul"]] == ["AA31", "AA39"] and spec["sizes"] == {"jul": 2}
-    assert spec["settings"]["heliostats"] == 8 and spec["plants"]["jul"][0]["effects"] == config["model"]["effects"]
+    assert spec["settings"]["heliostats"] == 30 and spec["plants"]["jul"][0]["effects"] == config["model"]["effects"]
     path = shared_inputs(config, "jul_AA31")[0]
     assert path == f"{results_dir(config)}/plant/shared.json"
     assert diagnose_params(config, "jul_AA39")["shared"] == {"path": path, "plant": "jul"}
