@@ -18,7 +18,7 @@ a slope error, a canting or a tracking error is each heliostat's own. The plant 
    the shared values fixed. The camera's gain and background stay each heliostat's own (in closed
    form: exposure and daylight change from image to image).
 4. The shared value of each of the change's widths (the camera's blur, the sun's width) is the
-   level the heliostats agree on from below (`lowest_level`). A heliostat's own effects (a slope
+   level the heliostats agree on from below (`Level`). A heliostat's own effects (a slope
    error, a bump, canting) only widen its spot (variances add), so each heliostat's own value is
    the shared one plus a share of its own, never less, plus its noise: its marginal sigma in its
    fit with the value free (models/uncertainty.py). Starting from the median, heliostats more than
