@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from helioflow.diagnosis.shared import Level, clipped_level
+from helioflow.diagnosis.shared import Level
 
 TRUE = 1.5
 
@@ -37,7 +37,7 @@ def main() -> None:
                 widened = rng.uniform(size=n) > clean
                 values = TRUE + rng.normal(0.0, sigma) + widened * rng.uniform(0.05, 0.5, n)
                 level = Level.of(values.tolist(), sigma.tolist())
-                _, kept = clipped_level(values, sigma)
+                kept = np.asarray(level.kept)
                 plain.append((1.0 / sigma[kept] ** 2).sum() ** -0.5 * math.sqrt(max(level.chi2_per_dof, 1.0)))
                 error.append(level.value - TRUE)
                 median.append(np.median(values) - TRUE)

@@ -24,9 +24,10 @@ a slope error, a canting or a tracking error is each heliostat's own. The plant 
    fit with the value free (models/uncertainty.py). Starting from the median, heliostats more than
    CLIP sigma above the inverse-variance mean of those kept are set aside (never those below), until
    the kept set stops changing: the one-sided clipping with which astronomers take the sky's level
-   under stars that only add light. A median would sit inside the widened ones where most
-   heliostats have an effect of their own (6-8 % high on the independent plants, 2.4-4.3 sigma), and
-   would leave the heliostats' own widening to the shared value: a slope error then goes unnamed.
+   under stars that only add light. A median sits inside the widened ones where most heliostats
+   have an effect of their own (6-8 % high on the independent plants, 2.4-4.3 sigma) and leaves the
+   heliostats' own widening to the shared value (on a 6 x 30-image plant both slope errors went
+   unnamed with it, both were named with the level: docs/results.md).
 5. A change is shared when it cuts the plant's held-out error (the mean over the heliostats of the
    misplaced flux fraction on their held-out images) meaningfully (diagnose.is_meaningful); the
    best one, then the best with one more change of another shared effect, as long as each step
@@ -325,7 +326,8 @@ def plant_verdict(n: int, before: float, after: float, chosen: list[str], kept: 
         words = [f"No change to the shared effects ({', '.join(sorted(kept)) or 'none in the model'}) cuts the "
                  f"held-out error of the {n} heliostats meaningfully: they are kept as configured."]
     else:
-        numbers = "; ".join(f"{name} = {v['value']:.4g} +- {v['sigma']:.2g}" for name, v in values.items())
+        numbers = "; ".join(f"{name} = {v['value']:.4g} +- {v['sigma']:.2g}, where {agreeing(v)} of the "
+                            f"{len(v['alone'])} heliostats agree" for name, v in values.items())
         words = [f"Shared by the {n} heliostats fitted: {', '.join(chosen)}"
                  + (f" ({numbers})" if numbers else "")
                  + f": the plant's held-out error falls from {before:.4f} to {after:.4f}."]
@@ -335,6 +337,12 @@ def plant_verdict(n: int, before: float, after: float, chosen: list[str], kept: 
     words.append(f"Each heliostat's own effects ({OWN}, canting, slope error, surface) are left to its own fit and diagnosis, "
                  "which take the shared effects at these values.")
     return " ".join(words)
+
+
+def agreeing(value: dict) -> int:
+    """How many heliostats the level of a shared value (`PlantFit.sigma`'s entry) kept: the fewer, the
+    more the value rests on a few heliostats' luck of carrying no widening of their own."""
+    return sum(a["kept"] for a in value["alone"].values())
 
 
 def with_plant(effects: dict, shared: dict | None) -> dict:
