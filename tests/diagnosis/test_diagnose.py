@@ -10,8 +10,11 @@ import torch
 from helioflow.diagnosis.candidates import candidates, implausible, separating
 from helioflow.diagnosis.diagnose import (
     ROUNDING,
+    SIGNIFICANCE,
+    THRESHOLD,
     Diagnosis,
     update_ledger,
+    verdict,
 )
 from helioflow.models.physics_fit import FitSettings, Measurements
 from helioflow.physics.heliostat import Heliostat, ideal_heliostat, without_planes
@@ -188,3 +191,30 @@ def test_a_slope_error_and_a_wider_sun_are_confounded_by_their_correlation_with_
     assert "correlation" in words
     found = d.correlation(top["effect"], partner, selected)
     assert found is not None and found[0] == pytest.approx(alike[partner]["correlation"], abs=1e-3)
+
+
+@pytest.mark.slow
+def test_a_slope_error_that_hardly_moves_the_misplaced_flux_is_named_by_its_fitted_value():
+    """Under a camera blur of 1.5 px a slope error of 0.5 mrad widens the spot's edges by a few per
+    cent: its held-out cut of the misplaced flux (averaged with 2 % noise over every pixel) is far
+    below THRESHOLD, yet its fitted value stands many sigma from 0 (the Wald test), so it is named,
+    and the verdict says why. The same world without it names tracking alone."""
+    camera = {"blur_px": 1.5, "background_w_m2": 0.0}
+    for slope in (0.5, 0.0):
+        world = {"sunshape": BUIE, "camera": camera, "tracking": {"axis1_offset_mrad": 2.0},
+                 **({"slope_error": {"sigma_mrad": slope}} if slope else {})}
+        d = diagnosis(world, {"sunshape": BUIE, "camera": camera}, noise=0.02)
+        d.tried = [c for c in d.tried if c.label in ("tracking", "slope_error", "canting")]
+        _, _, ranking, _, selected = d.rank()
+        summary = [(r["effect"], round(r["relative_reduction"], 3), r["significance"]) for r in ranking]
+        if not slope:
+            assert selected == ["tracking"], summary
+            continue
+        assert selected == ["tracking", "slope_error"], summary
+        entry = ranking[1]
+        assert entry["relative_reduction"] < THRESHOLD and entry["significance"]["p"] < SIGNIFICANCE, summary
+        assert 0.5 * slope < entry["fitted"]["sigma_mrad"] < 1.5 * slope, entry["fitted"]  # 0.34 here: the short
+        #                                                       fit ends low (not investigated)
+        remaining = d.remaining(selected)
+        text = verdict(ranking, {"width": "3% wider", "centroid": 2.0}, remaining, {})
+        assert "slope error" in text and "too little to count alone" in text and "Wald" in text, text

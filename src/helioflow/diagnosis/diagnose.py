@@ -9,8 +9,14 @@
    with a higher training loss. With one effect missing, the change that cuts the held-out error
    most is it; with several, a flexible effect (the surface) that mimics them all in part can win
    alone. So the identifiable candidates are chosen as the best subset (`Diagnosis.select`): the
-   best single change, then the best pair whose both members are needed (dropping either costs a
-   meaningful error), kept when it beats the single meaningfully, and so on up to `max_effects`.
+   best single change, then the best pair whose both members are needed, kept when it beats the
+   single (meaningfully, or as its superset with the added member needed), and so on up to
+   `max_effects`. A member is needed when dropping it costs a meaningful error, or when the images
+   determine its parameters away from the values that do nothing (`Diagnosis.significant`: a Wald
+   test at the joint fit, with the fit's misfit-inflated covariance) and it lowers the held-out
+   error: a change of the spot's width by a few per cent (a slope error under a blurred camera)
+   hardly moves the misplaced flux, which averages it into the noise, but its fitted value can
+   stand many sigma from zero.
    A subset holds at least one change that cuts the held-out error meaningfully alone (a forward
    step from it); subsets of changes that each help too little alone are left to the next
    revision's diagnosis (the loop). The cost: n single fits, and the pairs that hold one of the m
@@ -44,6 +50,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.stats import chi2
 from torch import Tensor
 
 from helioflow.data.hdf5 import read_dataset
@@ -97,6 +104,7 @@ MIRROR_IMAGES = 48  # images (evenly picked) the mirror localisation traces, reg
 NUMERICAL_FLOOR = 0.001  # misplaced flux below which a noise floor is not resolved by the diagnosis' fits
 PARTLY = 0.1  # a best candidate that cuts an unexplained residual by this much is named as explaining part of it
 SWAP_NOISE = 0.5  # swapping a chosen change for another that ends within this fraction of the noise floor: alike
+SIGNIFICANCE = 1e-3  # a candidate's fitted parameters depart from their do-nothing values at this level (Wald test)
 
 
 def model_hash(effects: dict) -> str:
@@ -246,18 +254,49 @@ class Diagnosis:
         chosen: tuple = ()
         for k in range(1, self.max_effects + 1):
             subsets = [s for s in itertools.combinations(names, k) if self.compatible(s) and helps & set(s)]
-            needed = [s for s in subsets
-                      if k == 1 or all(is_meaningful(self.error(set(s) - {m}), self.error(s)) for m in s)]
+            needed = [s for s in subsets if k == 1 or all(self.needed(m, set(s) - {m}) for m in s)]
             if not needed:
                 break
             best = min(needed, key=self.error)
-            if not is_meaningful(self.error(chosen), self.error(best)):
+            if not (is_meaningful(self.error(chosen), self.error(best))
+                    or (set(chosen) < set(best) and self.error(best) < self.error(chosen))):
                 break
             chosen = best
         order: list[str] = []
         while len(order) < len(chosen):
             order.append(min((n for n in chosen if n not in order), key=lambda n: self.error([*order, n])))
         return order
+
+    def needed(self, label: str, rest) -> bool:
+        """Whether candidate `label` is needed beside the candidates `rest`: dropping it costs a
+        meaningful held-out error, or its parameters are significant there (`significant`)."""
+        return is_meaningful(self.error(rest), self.error({*rest, label})) or self.significant(label, rest) is not None
+
+    def significant(self, label: str, rest) -> dict | None:
+        """The Wald test of candidate `label` beside the candidates `rest`, when it passes: at their
+        joint fit, the departure d of its fitted parameters from the values that do nothing (its
+        `neutral`; 0 for a tensor's entries) against their covariance C (models/uncertainty.py,
+        scaled by the fit's misfit and widened by how far it stopped short), W = d^T C+ d beyond the
+        1 - SIGNIFICANCE quantile of chi^2 with rank(C) degrees of freedom, and the held-out error
+        lower with it than without. {"wald", "dof", "p"}; None when it fails or cannot be tested (a
+        switched sun has no do-nothing values; a fit beyond COVARIANCE_PARAMETERS has no covariance)."""
+        c, key = self.candidate[label], frozenset({*rest, label})
+        if c.neutral is None or self.error(key) >= self.error(rest):
+            return None
+        fit = self.with_covariance(key)
+        at = self._indices(fit, label) if fit is not None else []
+        if not at:
+            return None
+        u = fit.uncertainty
+        d = u.values[at] - np.array([float(c.neutral.get(u.names[k].split(".", 1)[1], 0.0)) if "[" not in u.names[k]
+                                     else 0.0 for k in at])
+        covariance = u.covariance[np.ix_(at, at)]
+        dof = int(np.linalg.matrix_rank(covariance))
+        if dof == 0:
+            return None
+        wald = float(d @ np.linalg.pinv(covariance) @ d)
+        p = float(chi2.sf(wald, dof))
+        return {"wald": round(wald, 2), "dof": dof, "p": float(f"{p:.3g}")} if p < SIGNIFICANCE else None
 
     def rank(self) -> tuple[float, FitResult, list[dict], list[dict], list[str]]:
         """(held-out error of the model, the model's fit, ranking best first, effects not tested,
@@ -413,6 +452,7 @@ class Diagnosis:
                 "added_to": list(base), "heldout_error_before": before, "heldout_error_after": after,
                 "relative_reduction": 1.0 - after / max(before, 1e-30),
                 "identifiable": REGISTRY[c.effect].identifiable, "meaningful": meaningful,
+                "significance": self.significant(name, base) if meaningful and base else None,
                 "config": config_line(c, fit)}
 
 
@@ -498,7 +538,7 @@ def verdict(ranking: list[dict], summary: dict, remaining: dict, location: dict)
     text = (f"{lacks}: {evidence}; fitting it cuts the held-out error by {top['relative_reduction']:.0%} "
             f"(misplaced flux {top['heldout_error_before']:.3f} -> {top['heldout_error_after']:.3f}).")
     if len(meaningful) > 1:
-        others = ", ".join(f"{_words(r)} ({r['relative_reduction']:.0%})" for r in meaningful[1:])
+        others = ", ".join(f"{_words(r)} ({_cut_words(r)})" for r in meaningful[1:])
         text += f" Also needed, each added to the changes before it: {others}."
     for r in meaningful:
         for c in r["confounded_with"]:
@@ -538,6 +578,16 @@ def _lives(location: dict) -> str:
 
 def _words(entry: dict) -> str:
     return entry["effect"].replace("_", " ")
+
+
+def _cut_words(entry: dict) -> str:
+    """How much a needed change cuts the held-out error, and, when that cut alone would not have
+    named it, how far the images put its parameters from doing nothing (the Wald test)."""
+    cut, test = f"{entry['relative_reduction']:.0%}", entry.get("significance")
+    if test is None or entry["relative_reduction"] >= THRESHOLD:
+        return cut
+    return (f"{cut}, too little to count alone, but its fitted values stand away from doing nothing at "
+            f"p = {test['p']:.1g} (Wald {test['wald']:.1f} on {test['dof']} degrees of freedom)")
 
 
 def summarise(sig: dict[str, np.ndarray]) -> dict:
@@ -684,6 +734,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
         "model_hash": model_hash(effects),
         "error_measure": ERROR_MEASURE,
         "threshold": {"relative_reduction": THRESHOLD, "absolute_reduction": ABSOLUTE_FLOOR,
+                      "significance": SIGNIFICANCE,
                       "explained_over_noise": EXPLAINED, "numerical_floor": NUMERICAL_FLOOR},
         "heldout_error": before,
         "heldout": heldout,
