@@ -587,7 +587,7 @@ def _cut_words(entry: dict) -> str:
     if test is None or entry["relative_reduction"] >= THRESHOLD:
         return cut
     return (f"{cut}, too little to count alone, but its fitted values stand away from doing nothing at "
-            f"p = {test['p']:.1g} (Wald {test['wald']:.1f} on {test['dof']} degrees of freedom)")
+            f"p = {test['p']:.1g} (Wald {test['wald']:.1f}, {test['dof']} degree{'s' * (test['dof'] > 1)} of freedom)")
 
 
 def summarise(sig: dict[str, np.ndarray]) -> dict:
