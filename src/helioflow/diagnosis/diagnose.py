@@ -331,8 +331,9 @@ class Diagnosis:
     def swapped(self, label: str, chosen: list[str]) -> list[dict]:
         """Candidates that can stand in for `label` among the chosen ones: the chosen set with
         `label` swapped for them ends within SWAP_NOISE of the noise floor of the chosen set's
-        held-out error (or lower), given the other chosen changes. With the measurement that
-        separates them."""
+        held-out error (or lower), given the other chosen changes, and is needed there itself (a
+        change named for its significance cuts the error little, and a candidate that does nothing
+        would end as close). With the measurement that separates them."""
         rest = [n for n in chosen if n != label]
         error, tolerance = self.error(chosen), SWAP_NOISE * max(self.floor(chosen), NUMERICAL_FLOOR)
         out = []
@@ -342,7 +343,7 @@ class Diagnosis:
                     or c.effect == self.candidate[label].effect):
                 continue
             swapped = self.error([*rest, other])
-            if swapped <= error + tolerance:
+            if swapped <= error + tolerance and self.needed(other, rest):
                 out.append({"effect": other, "relative_reduction": 1.0 - swapped / max(self.error(rest), 1e-30),
                             "given": rest, "heldout_error": swapped,
                             "separated_by": separating(self.candidate[label].effect, c.effect)})
