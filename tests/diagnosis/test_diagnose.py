@@ -199,7 +199,8 @@ def test_a_slope_error_that_hardly_moves_the_misplaced_flux_is_named_by_its_fitt
     cent: its held-out cut of the misplaced flux (averaged with 2 % noise over every pixel) is far
     below THRESHOLD, yet its fitted value stands many sigma from 0 (the Wald test), so it is named,
     and the verdict says why; a candidate that does nothing (soiling here) is not listed as standing
-    in for it, although it ends as close (canting, itself significant beside tracking, may be). The same world without it names tracking alone."""
+    in for it, although it ends as close (canting, itself significant beside tracking, may be). The
+    same world without it names tracking alone."""
     camera = {"blur_px": 1.5, "background_w_m2": 0.0}
     for slope in (0.5, 0.0):
         world = {"sunshape": BUIE, "camera": camera, "tracking": {"axis1_offset_mrad": 2.0},
@@ -221,3 +222,5 @@ def test_a_slope_error_that_hardly_moves_the_misplaced_flux_is_named_by_its_fitt
         remaining = d.remaining(selected)
         text = verdict(ranking, {"width": "3% wider", "centroid": 2.0}, remaining, {})
         assert "slope error" in text and "too little to count alone" in text and "Wald" in text, text
+        assert entry["named_for"] == "significance" and ranking[0]["named_for"] == "cut", summary
+        assert ("does not determine" in text) == (not entry["significance"]["determined"]), text

@@ -53,10 +53,11 @@ DIAGNOSIS = {
     "threshold": 0.1,
     "ranking": [
         {"effect": "tracking", "fitted": {"axis_offset_mrad": 0.52}, "heldout_error_before": 0.4,
-         "heldout_error_after": 0.08, "relative_reduction": 0.8, "identifiable": True, "meaningful": True},
+         "heldout_error_after": 0.08, "relative_reduction": 0.8, "identifiable": True, "meaningful": True,
+         "named_for": "cut"},
         {"effect": "slope_error", "fitted": {"sigma_mrad": 0.86}, "heldout_error_before": 0.08,
          "heldout_error_after": 0.075, "relative_reduction": 0.06, "identifiable": True, "meaningful": True,
-         "significance": {"wald": 174.8, "dof": 1, "p": 6.6e-40}},
+         "significance": {"wald": 174.8, "dof": 1, "p": 6.6e-40, "determined": False}, "named_for": "significance"},
         {"effect": "reflectivity", "fitted": {"value": 0.93}, "heldout_error_before": 0.4,
          "heldout_error_after": 0.4, "relative_reduction": -0.001, "identifiable": False},
     ],
@@ -145,7 +146,8 @@ def test_report_has_every_section_with_figures_inline_and_no_links_to_files(file
     assert DIAGNOSIS["verdict"] in diagnosis and "axis_offset_mrad = 0.52" in diagnosis
     assert "80 %" in diagnosis and "-0 %" not in diagnosis  # relative reductions
     assert "counts from: relative reduction 10 %" in diagnosis and "needs the field geometry" in diagnosis
-    assert "<td>its cut</td>" in diagnosis and "its fitted values (Wald p = 7e-40)" in diagnosis  # why named
+    assert "<td>its cut</td>" in diagnosis  # why each selected change is named
+    assert "its fitted values (Wald p = 7e-40, value not determined)" in diagnosis
     assert "rms_centroid_offset_mrad" in diagnosis
     recovered = _section(text, "What drt recovered of the true heliostats")
     assert "<h3>scan</h3>" in recovered and "<td>surface_mm</td>" in recovered and "0.013" in recovered

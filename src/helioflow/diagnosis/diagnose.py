@@ -283,8 +283,11 @@ class Diagnosis:
         `neutral`; 0 for a tensor's entries) against their covariance C (models/uncertainty.py,
         scaled by the fit's misfit and widened by how far it stopped short), W = d^T C+ d beyond the
         1 - SIGNIFICANCE quantile of chi^2 with rank(C) degrees of freedom, and the held-out error
-        lower with it than without. {"wald", "dof", "p"}; None when it fails or cannot be tested (a
-        switched sun has no do-nothing values; a fit beyond COVARIANCE_PARAMETERS has no covariance)."""
+        lower with it than without. {"wald", "dof", "p", "determined"}: `determined` false when the
+        covariance reports any of its parameters not determined (a structured residual: the value may
+        stand in for what the model lacks, and the verdict says so); None when it fails or cannot be
+        tested (a switched sun has no do-nothing values; a fit beyond COVARIANCE_PARAMETERS has no
+        covariance)."""
         c, key = self.candidate[label], frozenset({*rest, label})
         if c.neutral is None or self.error(key) >= self.error(rest):
             return None
@@ -301,7 +304,10 @@ class Diagnosis:
             return None
         wald = float(d @ np.linalg.pinv(covariance) @ d)
         p = float(chi2.sf(wald, dof))
-        return {"wald": round(wald, 2), "dof": dof, "p": float(f"{p:.3g}")} if p < SIGNIFICANCE else None
+        if p >= SIGNIFICANCE:
+            return None
+        return {"wald": round(wald, 2), "dof": dof, "p": float(f"{p:.3g}"),
+                "determined": not any(u.names[k] in u.undetermined for k in at)}
 
     def rank(self) -> tuple[float, FitResult, list[dict], list[dict], list[str]]:
         """(held-out error of the model, the model's fit, ranking best first, effects not tested,
@@ -453,12 +459,14 @@ class Diagnosis:
         before, after = self.error(base), self.error([*base, name])
         c = self.candidate[name]
         fit = self.fitted([*base, name])[1]
+        test = self.significant(name, base) if meaningful and base else None
         own = {k.split(".", 1)[1]: v for k, v in fit.fitted_values().items() if k.startswith(c.effect + ".")}
         return {"effect": name, "changes": c.effect, "change": c.change, "fitted": _summarised(own),
                 "added_to": list(base), "heldout_error_before": before, "heldout_error_after": after,
                 "relative_reduction": 1.0 - after / max(before, 1e-30),
                 "identifiable": REGISTRY[c.effect].identifiable, "meaningful": meaningful,
-                "significance": self.significant(name, base) if meaningful and base else None,
+                "significance": test, "named_for": ("" if not meaningful else "cut" if test is None
+                                                    or 1.0 - after / max(before, 1e-30) >= THRESHOLD else "significance"),
                 "config": config_line(c, fit)}
 
 
@@ -587,13 +595,17 @@ def _words(entry: dict) -> str:
 
 
 def _cut_words(entry: dict) -> str:
-    """How much a needed change cuts the held-out error, and, when that cut alone would not have
-    named it, how far the images put its parameters from doing nothing (the Wald test)."""
+    """How much a needed change cuts the held-out error, and, when it was named for its fitted values
+    (`named_for`), how far the images put them from doing nothing (the Wald test) and whether the
+    covariance determines them."""
     cut, test = f"{entry['relative_reduction']:.0%}", entry.get("significance")
-    if test is None or entry["relative_reduction"] >= THRESHOLD:
+    if entry.get("named_for") != "significance":
         return cut
+    caveat = ("" if test["determined"] else "; the residual is structured, so the covariance does not determine "
+              "its value: it may stand in for what the model lacks")
     return (f"{cut}, too little to count alone, but its fitted values stand away from doing nothing at "
-            f"p = {test['p']:.1g} (Wald {test['wald']:.1f}, {test['dof']} degree{'s' * (test['dof'] > 1)} of freedom)")
+            f"p = {test['p']:.1g} (Wald {test['wald']:.1f}, {test['dof']} degree{'s' * (test['dof'] > 1)} of "
+            f"freedom{caveat})")
 
 
 def summarise(sig: dict[str, np.ndarray]) -> dict:

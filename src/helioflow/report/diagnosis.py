@@ -89,26 +89,19 @@ def _flat(values) -> list:
 def _ranking(d: dict) -> str:
     rows = [[i + 1, r.get("effect"), _fitted(r.get("fitted")), r.get("heldout_error_before"),
              r.get("heldout_error_after"), _pct(r.get("relative_reduction")), r.get("identifiable"),
-             _named_by(r, _relative_threshold(d.get("threshold")))]
+             _named_by(r)]
             for i, r in enumerate(d["ranking"])]
     return table(["rank", "effect", "fitted parameters", "held-out error before", "after",
                   "relative reduction", "identifiable", "named for"], rows)
 
 
-def _relative_threshold(threshold) -> float | None:
-    """The relative cut that counts (a diagnosis JSON's `threshold`: a dict, or a number before)."""
-    return threshold.get("relative_reduction") if isinstance(threshold, dict) else threshold
-
-
-def _named_by(entry: dict, threshold: float | None) -> str:
-    """Why a selected change is named: its cut of the held-out error, or (a cut below the threshold)
-    its fitted values' Wald test; empty for a change not selected."""
-    if not entry.get("meaningful"):
-        return ""
+def _named_by(entry: dict) -> str:
+    """Why a selected change is named (the entry's `named_for`): its cut of the held-out error, or its
+    fitted values' Wald test; empty for a change not selected."""
     test = entry.get("significance")
-    if test and threshold is not None and (entry.get("relative_reduction") or 0.0) < threshold:
-        return f"its fitted values (Wald p = {test['p']:.1g})"
-    return "its cut"
+    if entry.get("named_for") == "significance":
+        return f"its fitted values (Wald p = {test['p']:.1g}{'' if test['determined'] else ', value not determined'})"
+    return "its cut" if entry.get("meaningful") else ""
 
 
 def diagnosis_section(files: dict[str, list[str]]) -> str:
