@@ -305,7 +305,8 @@ def test_the_plant_section_shows_what_the_heliostats_share(tmp_path):
 
 def _plant_rows(n: int) -> list[dict]:
     """n plant table rows (scoring.plant COLUMNS): heliostat k points k x 0.2 mrad off, names 9 kinds
-    of named effects, the last two flagged."""
+    of named effects, the last two off (pointing beyond 1 mrad), the first with a canting its fit does
+    not determine (flagged, not off)."""
     kinds = ["tracking", "tracking;canting", "tracking;surface", "tracking;slope_error", "canting", "surface",
              "slope_error", "tracking;canting;surface", ""]
     return [{"plant": "plant", "heliostat": f"P{k:03d}", "dataset": f"plant_P{k:03d}", "east_m": 4.0 * k - 20,
@@ -313,7 +314,8 @@ def _plant_rows(n: int) -> list[dict]:
              "named_effects": kinds[k % len(kinds)], "pointing_error_mrad": round(0.2 * k, 3),
              "pointing_error_sigma_mrad": 0.01, "canting_rms_mrad": 0.31, "canting_rms_sigma_mrad": 0.02,
              "surface_rms_mm": "", "surface_rms_sigma_mm": "",
-             "flags": "pointing > 1 mrad" if k >= n - 2 else ""} for k in range(n)]
+             "flags": "pointing > 1 mrad" if k >= n - 2 else "canting not determined" if k == 0 else ""}
+            for k in range(n)]
 
 
 def test_the_plant_section_shows_the_plan_the_worst_heliostats_and_the_plants_flux(tmp_path):
@@ -338,7 +340,8 @@ def test_the_plant_section_shows_the_plan_the_worst_heliostats_and_the_plants_fl
     files = {"plant": [str(table)], "plant_plan": [str(plan)],
              "plant_flux": [str(tmp_path / "plant.json"), str(plan)]}
     text = _section(build_report(files, None, "t"), "The plant")
-    assert '<td>heliostats</td><td class="num">12</td>' in text and '<td>flagged</td><td class="num">2</td>' in text
+    assert '<td>heliostats</td><td class="num">12</td>' in text
+    assert '<td>off: pointing beyond the limit or a residual unexplained</td><td class="num">2</td>' in text
     worst = re.findall(r"<tr><td>(P\d+)</td>", text)
     assert worst[:3] == ["P011", "P010", "P009"]  # by pointing error, largest first
     assert "<td>0.310 ± 0.020</td><td>–</td>" in text

@@ -187,13 +187,14 @@ def _leave_one_out_section(files: dict[str, list[str]]) -> str:
 
 
 def _plant_section(files: dict[str, list[str]]) -> str:
-    """The plant table (scoring.plant): how many heliostats, how many flagged, which effects the
+    """The plant table (scoring.plant): how many heliostats, how many are off, which effects the
     diagnoses named how often, and the PLANT_WORST heliostats with the largest pointing error."""
-    from helioflow.scoring.plant import COLUMNS
+    from helioflow.scoring.plant import COLUMNS, is_off
 
     parts = [_shared_part(path) for path in files["plant_shared"]]
     parts += [figure(path, "The plant's plan: each calibrated heliostat at its pivot, coloured by its pointing "
-                     "error, its marker the effects its diagnosis named, flagged ones ringed red")
+                     "error, its marker the effects its diagnosis named, those that are off (pointing beyond the "
+                     "limit, or a residual the diagnosis could not explain) ringed red")
               for path in files["plant_plan"]]
     for path in files["plant"]:
         try:
@@ -206,8 +207,8 @@ def _plant_section(files: dict[str, list[str]]) -> str:
         for r in records:
             for effect in filter(None, r["named_effects"].split(";")):
                 named[effect] = named.get(effect, 0) + 1
-        flagged = [r for r in records if r["flags"]]
-        summary = [["heliostats", len(records)], ["flagged", len(flagged)],
+        off = [r for r in records if is_off(r["flags"])]
+        summary = [["heliostats", len(records)], ["off: pointing beyond the limit or a residual unexplained", len(off)],
                    *[[f"named: {effect}", count] for effect, count in sorted(named.items(), key=lambda kv: -kv[1])]]
         worst = sorted(records, key=lambda r: -(_number(r["pointing_error_mrad"]) or 0.0))[:PLANT_WORST]
         rows = [[r["heliostat"], r["images"], _shown(r["heldout_error_ideal"], 4),

@@ -1,7 +1,8 @@
 """The plant's plan (rule plant_table -> plant/plan.png): every calibrated heliostat at its pivot
 (east, north; m, the tower at the origin), coloured by its pointing error (mrad, one colour scale),
-its marker telling the effects its diagnosis named (the MARKED most common combinations each a shape
-of their own, the rest one shape), a red ring around the flagged ones. Readable for hundreds of
+its marker telling the effects its diagnosis named (the MARKED most common sets each a shape of
+their own, the rest one shape), a red ring around those that are off (scoring.plant.is_off: pointing
+beyond the limit, or a residual the diagnosis could not explain). Readable for hundreds of
 heliostats: one marker each, no labels but the legend's; the heliostats without a pointing error
 (a model without kinematics) grey."""
 
@@ -13,6 +14,7 @@ from collections import Counter
 import numpy as np
 
 from helioflow.plotting import plt, save_figure
+from helioflow.scoring.plant import is_off
 
 SHAPES = ("o", "s", "^", "D", "v", "P", "X")  # the first MARKED combinations; the rest "*"
 MARKED = len(SHAPES)
@@ -28,8 +30,8 @@ def plot_plant_plan(path: str | os.PathLike, rows: list[dict], pointing_limit_mr
     east = np.array([_number(r["east_m"]) for r in rows])
     north = np.array([_number(r["north_m"]) for r in rows])
     pointing = np.array([_number(r["pointing_error_mrad"]) for r in rows])
-    named = [r["named_effects"] or "none" for r in rows]
-    flagged = np.array([bool(r["flags"]) for r in rows])
+    named = [";".join(sorted(filter(None, r["named_effects"].split(";")))) or "none" for r in rows]
+    flagged = np.array([is_off(r["flags"]) for r in rows])
     order = [c for c, _ in Counter(named).most_common()]
     shape = {c: SHAPES[i] if i < MARKED else "*" for i, c in enumerate(order)}
     fig, ax = plt.subplots(figsize=(7.5, 6.2))
@@ -52,7 +54,7 @@ def plot_plant_plan(path: str | os.PathLike, rows: list[dict], pointing_limit_mr
         ax.scatter([], [], s=size, marker=marker, color="w", edgecolors="k", label=label)
     if flagged.any():
         ax.scatter(east[flagged], north[flagged], s=size * 3.2, facecolors="none", edgecolors="tab:red",
-                   linewidths=1.0, label=f"flagged ({int(flagged.sum())})")
+                   linewidths=1.0, label=f"off ({int(flagged.sum())}): pointing or residual")
     ax.scatter([0.0], [0.0], s=70, marker="^", color="k", label="tower")
     if shown is not None:
         bar = fig.colorbar(shown, ax=ax, shrink=0.85)
