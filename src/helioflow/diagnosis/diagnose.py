@@ -7,18 +7,18 @@
    train split and scored on the held-out splits (interpolation and extrapolation together). Fits
    are nested: a model with one change more starts from the fit without its most flexible change
    (and from the others only when that start ends above one of them) and never ends with a higher
-   training loss. With one effect missing, the change that cuts the held-out error
-   most is it; with several, a flexible effect (the surface) that mimics them all in part can win
-   alone. So the identifiable candidates are chosen as the best subset (`Diagnosis.select`): the
-   best single change, then the best pair whose both members are needed, kept when it beats the
-   single (meaningfully, or as its superset with the added member needed), and so on up to
-   `max_effects`; a subset holding a surface gives way to the best rigid one that ends within
-   half a noise floor of it (`Diagnosis.rigid_alike`). A member is needed when dropping it costs a meaningful error, or when the images
-   determine its parameters away from the values that do nothing (`Diagnosis.significant`: a Wald
-   test at the joint fit, with the fit's misfit-inflated covariance) and it lowers the held-out
-   error: a change of the spot's width by a few per cent (a slope error under a blurred camera)
-   hardly moves the misplaced flux, which averages it into the noise, but its fitted value can
-   stand many sigma from zero.
+   training loss. With one effect missing, the change that cuts the held-out error most is it;
+   with several, a flexible effect (the surface) that mimics them all in part can win alone. So
+   the identifiable candidates are chosen as the best subset (`Diagnosis.select`): the best single
+   change, then the best pair whose both members are needed, kept when it beats the single
+   (meaningfully, or as its superset with the added member needed), and so on up to
+   `max_effects`; a subset holding a surface gives way to the best rigid one that ends within half
+   a noise floor of it (`Diagnosis.rigid_alike`). A member is needed when dropping it costs a
+   meaningful error, or when the images determine its parameters away from the values that do
+   nothing (`Diagnosis.significant`: a Wald test at the joint fit, with the fit's misfit-inflated
+   covariance) and it lowers the held-out error: a change of the spot's width by a few per cent (a
+   slope error under a blurred camera) hardly moves the misplaced flux, which averages it into the
+   noise, but its fitted value can stand many sigma from zero.
    A subset holds at least one change that cuts the held-out error meaningfully alone (a forward
    step from it); subsets of changes that each help too little alone are left to the next
    revision's diagnosis (the loop). The cost: n single fits, and the pairs that hold one of the m
