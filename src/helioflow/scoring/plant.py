@@ -21,7 +21,8 @@ Columns of results/<experiment>/plant/heliostats.csv:
 - flags: ';'-separated: `pointing > <limit> mrad` (config plant.pointing_limit_mrad),
   `tracking not determined`, `canting not determined`, `surface not determined` (entries the fit
   cannot pin down, models/uncertainty.py), `residual <k> x noise` (what the diagnosis could not explain).
-  The first and the last say the heliostat is off (`is_off`); "not determined" says how sure the fit is.
+  The first and the last say the heliostat is off (scoring.plant_figure.is_off); "not determined"
+  says how sure the fit is.
 """
 
 from __future__ import annotations
@@ -47,13 +48,6 @@ COLUMNS = ("plant", "heliostat", "dataset", "east_m", "north_m", "images", "held
            "heldout_error_calibrated", "named_effects", "pointing_error_mrad", "pointing_error_sigma_mrad",
            "canting_rms_mrad", "canting_rms_sigma_mrad", "surface_rms_mm", "surface_rms_sigma_mm", "flags")
 DRAWS = 512  # tracking draws from the covariance for the pointing error's sigma
-OFF = ("pointing >", "residual ")  # flags that say a heliostat is off, not how sure its fit is
-
-
-def is_off(flags: str) -> bool:
-    """Whether a plant table row's flags say the heliostat is off: its pointing beyond the limit, or
-    a residual its diagnosis could not explain (not: an entry its fit does not determine)."""
-    return any(flag.startswith(OFF) for flag in flags.split(";"))
 
 
 def pointing_error(heliostat: Heliostat, tracking_mrad: torch.Tensor, covariance: np.ndarray | None,
