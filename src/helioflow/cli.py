@@ -238,7 +238,11 @@ def cmd_plant_table(args) -> None:
         spec = workflow.plant_table_spec(workflow.expand_config(load_config(args.config)))
     else:
         raise HelioflowError("give --spec JSON or @FILE, or --config FILE")
-    rows = write_plant_table(spec, args.csv, args.plan)
+    rows = write_plant_table(spec, args.csv)
+    if args.plan is not None:
+        from helioflow.scoring.plant_figure import plot_plant_plan
+
+        plot_plant_plan(args.plan, rows, spec["pointing_limit_mrad"])
     logging.info("wrote %s (%d heliostats)", args.csv, len(rows))
 
 

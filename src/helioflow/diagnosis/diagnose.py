@@ -188,7 +188,7 @@ class Diagnosis:
         """(held-out misplaced flux, the fit) of the model with the candidates `labels`, fitted on the
         train split. Nested: the fit starts from a fit of one candidate fewer, and keeps that start
         (the added candidate at its neutral values) when it ends with a higher training loss (beyond
-        ROUNDING). The most flexible candidate (most free parameters, `flexibility`) is added last: a
+        ROUNDING). The most flexible candidate (most free parameters, `free_parameters`) is added last: a
         surface fitted alone takes up a tracking error, and the pair started from it stays in that
         minimum (on the 30-heliostat plant the pair started from the tracking's fit ends at
         0.35-0.5 of its training loss and at 0.4-0.5 of its held-out error, near the noise floor).
@@ -204,7 +204,7 @@ class Diagnosis:
             fewer = {added: self.fitted(key - {added})[1] for added in key}
             bound = min(base.history[-1] for base in fewer.values()) * (1.0 + ROUNDING)
             ends = []
-            for added in sorted(key, key=lambda label: (-self.flexibility(label), label)):
+            for added in sorted(key, key=lambda label: (-self.free_parameters([label]), label)):
                 base = fewer[added]
                 end = fit_effects(self.scene, effects, self.train, self.settings, start=base)
                 kept = self._embedded(base, key, added)
@@ -216,12 +216,14 @@ class Diagnosis:
         log.info("model + %s: held-out error %.4f", " + ".join(sorted(key)) or "nothing", self.fits[key][0])
         return self.fits[key]
 
-    def flexibility(self, label: str) -> int:
-        """The free parameters a candidate adds: its tensor's free entries (a surface's control
-        heights: hundreds; canting: 2 per facet; a tracking error: 5), else its "fit" scalars."""
-        c = self.candidate[label]
-        _, masks = initial_tensors({c.effect: dict(c.params)}, self.scene.heliostat)
-        return sum(int(m.sum()) for m in masks.values()) or len(fitted_parameters({c.effect: c.params}))
+    def free_parameters(self, labels, with_model: bool = False) -> int:
+        """The free parameters the candidates `labels` add (with the model's own "fit" ones too when
+        `with_model`): tensors' free entries (a surface's control heights: hundreds; canting: 2 per
+        facet; a tracking error: 5) and the "fit" scalars of effects without a tensor."""
+        effects = self.effects_with(labels) if with_model else {
+            self.candidate[n].effect: dict(self.candidate[n].params) for n in labels}
+        _, masks = initial_tensors(effects, self.scene.heliostat)
+        return sum(int(m.sum()) for m in masks.values()) + sum(e not in masks for e, _ in fitted_parameters(effects))
 
     def _embedded(self, base: FitResult, key: frozenset, added: str) -> FitResult | None:
         """The fit `base` as a fit of the model with the candidates `key`: the `added` candidate at
@@ -287,14 +289,15 @@ class Diagnosis:
         return order
 
     def rigid_alike(self, best: tuple, subsets: list[tuple]) -> tuple:
-        """`best`, or, when it holds a flexible change (beyond COVARIANCE_PARAMETERS free parameters:
-        a surface's heights, which bend to mimic a tilt or a widening), the best of the `subsets`
-        without one when that ends within SWAP_NOISE of the noise floor of `best`: the images do not
-        tell them apart, and the rigid change's values are tested and carry their sigma (the
-        flexible one stays listed as its stand-in). On the 30-heliostat plant a slope error and a
-        canting were named surface + tracking at held-out errors within 1 % of the true pair's; the
-        surface of a bump cuts 1.3-2.7 noise floors below the best rigid pair."""
-        rigid = lambda subset: all(self.flexibility(n) <= COVARIANCE_PARAMETERS for n in subset)
+        """`best`, or, when its joint fit is too flexible for a covariance (beyond
+        COVARIANCE_PARAMETERS free parameters: a surface's heights, which bend to mimic a tilt or a
+        widening), the best of the `subsets` whose fit has one when that ends within SWAP_NOISE of the
+        noise floor of `best`: the images do not tell them apart, and the rigid changes' values are
+        tested and carry their sigma (the flexible one stays listed as a stand-in). On the
+        30-heliostat plant a slope error and a canting were named surface + tracking at held-out
+        errors within 1 % of the true pair's; the surface of a bump cuts 1.3-2.7 noise floors below
+        the best rigid pair."""
+        rigid = lambda subset: self.free_parameters(subset, with_model=True) <= COVARIANCE_PARAMETERS
         alike = [s for s in subsets if rigid(s)]
         if rigid(best) or not alike:
             return best
@@ -395,10 +398,9 @@ class Diagnosis:
         it was not fitted or has more than COVARIANCE_PARAMETERS parameters."""
         if key not in self.covariances:
             fit = self.fits[key][1] if key in self.fits else None
-            _, masks = initial_tensors(fit.effects, self.scene.heliostat) if fit else (None, {})
-            size = sum(int(m.sum()) for m in masks.values()) + sum(e not in masks for e, _ in fit.fitted) if fit else 0
             self.covariances[key] = (with_uncertainty(self.scene, fit, self.train, "shape")
-                                     if fit and size <= COVARIANCE_PARAMETERS else None)
+                                     if fit and self.free_parameters(key, with_model=True) <= COVARIANCE_PARAMETERS
+                                     else None)
         return self.covariances[key]
 
     def correlated(self, label: str, chosen: list[str]) -> list[dict]:

@@ -189,8 +189,7 @@ def _leave_one_out_section(files: dict[str, list[str]]) -> str:
 def _plant_section(files: dict[str, list[str]]) -> str:
     """The plant table (scoring.plant): how many heliostats, how many are off, which effects the
     diagnoses named how often, and the PLANT_WORST heliostats with the largest pointing error."""
-    from helioflow.scoring.plant import COLUMNS
-    from helioflow.scoring.plant_figure import is_off
+    from helioflow.scoring.plant import COLUMNS, is_off
 
     parts = [_shared_part(path) for path in files["plant_shared"]]
     parts += [figure(path, "The plant's plan: each calibrated heliostat at its pivot, coloured by its pointing "

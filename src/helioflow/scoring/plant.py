@@ -21,8 +21,8 @@ Columns of results/<experiment>/plant/heliostats.csv:
 - flags: ';'-separated: `pointing > <limit> mrad` (config plant.pointing_limit_mrad),
   `tracking not determined`, `canting not determined`, `surface not determined` (entries the fit
   cannot pin down, models/uncertainty.py), `residual <k> x noise` (what the diagnosis could not explain).
-  The first and the last say the heliostat is off (scoring.plant_figure.is_off); "not determined"
-  says how sure the fit is.
+  The first and the last say the heliostat is off (`is_off`); "not determined" says how sure the
+  fit is.
 """
 
 from __future__ import annotations
@@ -48,6 +48,13 @@ COLUMNS = ("plant", "heliostat", "dataset", "east_m", "north_m", "images", "held
            "heldout_error_calibrated", "named_effects", "pointing_error_mrad", "pointing_error_sigma_mrad",
            "canting_rms_mrad", "canting_rms_sigma_mrad", "surface_rms_mm", "surface_rms_sigma_mm", "flags")
 DRAWS = 512  # tracking draws from the covariance for the pointing error's sigma
+OFF = ("pointing >", "residual ")  # the flags (heliostat_row) that say a heliostat is off, not how sure its fit is
+
+
+def is_off(flags: str) -> bool:
+    """Whether a plant table row's flags say the heliostat is off: its pointing beyond the limit, or
+    a residual its diagnosis could not explain (not: an entry its fit does not determine)."""
+    return any(flag.startswith(OFF) for flag in flags.split(";"))
 
 
 def pointing_error(heliostat: Heliostat, tracking_mrad: torch.Tensor, covariance: np.ndarray | None,
@@ -143,11 +150,10 @@ def heliostat_row(plant: str, heliostat: str, dataset: str, dataset_path: str | 
     return row
 
 
-def write_plant_table(spec: dict, output_csv: str | os.PathLike, plan_png: str | os.PathLike | None = None
-                      ) -> list[dict]:
+def write_plant_table(spec: dict, output_csv: str | os.PathLike) -> list[dict]:
     """The plant table of `spec` ({"pointing_limit_mrad": float, "heliostats": [{plant, heliostat, dataset,
-    and the paths dataset_path, model_path, diagnosis_path}]}) written to `output_csv`, and its plan figure
-    to `plan_png` (scoring.plant_figure) when given; returns its rows."""
+    and the paths dataset_path, model_path, diagnosis_path}]}) written to `output_csv`; returns its rows
+    (its plan figure: scoring.plant_figure)."""
     rows = [heliostat_row(h["plant"], h["heliostat"], h["dataset"], h["dataset_path"], h["model_path"],
                           h["diagnosis_path"], spec["pointing_limit_mrad"]) for h in spec["heliostats"]]
     text = io.StringIO()
@@ -155,8 +161,4 @@ def write_plant_table(spec: dict, output_csv: str | os.PathLike, plan_png: str |
     writer.writeheader()
     writer.writerows(rows)
     write_text_atomic(output_csv, text.getvalue())
-    if plan_png is not None:
-        from helioflow.scoring.plant_figure import plot_plant_plan
-
-        plot_plant_plan(plan_png, rows, spec["pointing_limit_mrad"])
     return rows

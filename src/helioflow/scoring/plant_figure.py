@@ -1,7 +1,7 @@
 """The plant's plan (rule plant_table -> plant/plan.png): every calibrated heliostat at its pivot
 (east, north; m, the tower at the origin), coloured by its pointing error (mrad, one colour scale),
 its marker telling the effects its diagnosis named (the MARKED most common sets each a shape of
-their own, the rest one shape), a red ring around those that are off (`is_off`: pointing
+their own, the rest one shape), a red ring around those that are off (scoring.plant.is_off: pointing
 beyond the limit, or a residual the diagnosis could not explain). Readable for hundreds of
 heliostats: one marker each, no labels but the legend's; the heliostats without a pointing error
 (a model without kinematics) grey."""
@@ -14,16 +14,10 @@ from collections import Counter
 import numpy as np
 
 from helioflow.plotting import plt, save_figure
+from helioflow.scoring.plant import is_off
 
 SHAPES = ("o", "s", "^", "D", "v", "P", "X")  # the first MARKED combinations; the rest "*"
 MARKED = len(SHAPES)
-OFF = ("pointing >", "residual ")  # plant table flags (scoring.plant) that say a heliostat is off
-
-
-def is_off(flags: str) -> bool:
-    """Whether a plant table row's flags say the heliostat is off: its pointing beyond the limit, or
-    a residual its diagnosis could not explain (not: an entry its fit does not determine)."""
-    return any(flag.startswith(OFF) for flag in flags.split(";"))
 
 
 def _number(text) -> float:
