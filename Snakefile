@@ -15,6 +15,7 @@ include: "workflow/rules/images.smk"
 include: "workflow/rules/networks.smk"
 include: "workflow/rules/field.smk"
 include: "workflow/rules/diagnose.smk"
+include: "workflow/rules/batches.smk"
 include: "workflow/rules/report.smk"
 include: "workflow/rules/specs.smk"
 

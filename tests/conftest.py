@@ -51,19 +51,21 @@ REPO = Path(__file__).resolve().parents[1]
 
 @pytest.fixture
 def dry_run(tmp_path):
-    """`dry_run(config)`: `snakemake -n all` on `config` (a dict, written as config.yaml beside links to
-    the repository's Snakefile and workflow in tmp_path); asserts it succeeds and returns its output
-    (stdout and stderr). snakemake is a requirement (requirements.txt): without it the test fails."""
+    """`dry_run(config, *flags)`: `snakemake -n all *flags` on `config` (a dict, written as config.yaml
+    beside links to the repository's Snakefile and workflow in tmp_path); asserts it succeeds and
+    returns its output (stdout and stderr). snakemake is a requirement (requirements.txt): without it
+    the test fails."""
     assert SNAKEMAKE.exists(), f"{SNAKEMAKE} is missing: install requirements.txt into this env"
 
-    def run(config: dict) -> str:
+    def run(config: dict, *flags: str) -> str:
         for name in ("Snakefile", "workflow"):
-            (tmp_path / name).symlink_to(REPO / name)
+            if not (tmp_path / name).exists():
+                (tmp_path / name).symlink_to(REPO / name)
         (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
         env = {k: v for k, v in os.environ.items() if not k.startswith("SNAKEMAKE")}
         env["PATH"] = f"{SNAKEMAKE.parent}{os.pathsep}{env.get('PATH', '')}"
-        proc = subprocess.run([str(SNAKEMAKE), "-n", "all"], cwd=tmp_path, env=env, capture_output=True, text=True,
-                              timeout=300, check=False)
+        proc = subprocess.run([str(SNAKEMAKE), "-n", "all", *flags], cwd=tmp_path, env=env, capture_output=True,
+                              text=True, timeout=300, check=False)
         assert proc.returncode == 0, proc.stderr
         return proc.stdout + proc.stderr
 

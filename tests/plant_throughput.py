@@ -1,10 +1,11 @@
 """Where a plant run's time goes: heliostats per hour and the share spent outside the fits, from
 snakemake's benchmark files of one experiment and the wall time snakemake printed.
 
-The fits are the jobs that fit (train, diagnose, plant_shared) less each one's process start-up (the
-Python and torch imports, `--startup-s`, measured apart with `python -c "import torch, helioflow.cli"`);
-everything else (imports of the PAINT folders, evaluation, tables, flux maps, the report, the
-start-ups) is outside them.
+The fits are the jobs that fit (train, diagnose, plant_shared, and the batched train and diagnose of
+a plant in groups, config plant.group_size) less each one's process start-up (the Python and torch
+imports, `--startup-s`, measured apart with `python -c "import torch, helioflow.cli"`); everything
+else (imports of the PAINT folders, evaluation, tables, flux maps, the report, the start-ups) is
+outside them. The heliostats are the rows of plant/heliostats.csv.
 
 Run: python tests/plant_throughput.py RESULTS_DIR SNAKEMAKE_LOG [--startup-s 2.5]
 """
@@ -16,7 +17,7 @@ import re
 from collections import defaultdict
 from pathlib import Path
 
-FITS = ("train", "diagnose", "plant_shared")
+FITS = ("train", "diagnose", "plant_shared", "batch_train", "batch_diagnose")
 
 
 def job_seconds(results: Path) -> dict[str, list[float]]:
@@ -45,7 +46,7 @@ def main() -> None:
     args = ap.parse_args()
     jobs = job_seconds(Path(args.results))
     wall = elapsed_s(Path(args.log))
-    heliostats = len(jobs.get("diagnose", []))
+    heliostats = len((Path(args.results) / "plant" / "heliostats.csv").read_text().splitlines()) - 1
     total = sum(map(sum, jobs.values()))
     fit_jobs = sum(len(jobs.get(r, [])) for r in FITS)
     fits = sum(sum(jobs.get(r, [])) for r in FITS) - fit_jobs * args.startup_s

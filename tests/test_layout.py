@@ -27,6 +27,7 @@ LAYERS = (
     "field",  # field flux maps
     "report",
     "workflow",  # the Snakefile's rule helpers
+    "batch",  # a plant's steps in groups, one process per group
     "config",  # validation of a whole config
     "cli",
     "bench",

@@ -49,6 +49,12 @@ def cmd_recovery(args) -> None:
         write_recovery(args.model, args.heliostat, args.dataset, args.output, args.device)
 
 
+def cmd_batch(args) -> None:
+    from helioflow.batch import run_batch
+
+    run_batch(read_spec(args.commands), parser().parse_args)
+
+
 def cmd_plan_measurements(args) -> None:
     from helioflow.models.planning import plan_measurements
 
@@ -434,6 +440,12 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--output", help="plan/<dataset>.json (default: print the JSON)")
     _with_spec(p)
     p.set_defaults(func=cmd_plan_measurements)
+
+    p = sub.add_parser("batch", help="several steps in one process, each with its own log (a plant's group of "
+                                     "heliostats, config plant.group_size)")
+    p.add_argument("--commands", required=True, help="JSON list of {argv: the step's arguments, log: its log file}, "
+                                                     "or @FILE of it (what helioflow.batch.batch_job gives)")
+    p.set_defaults(func=cmd_batch)
 
     p = sub.add_parser("report", help="the self-contained HTML report of an experiment")
     p.add_argument("--inputs", required=True,

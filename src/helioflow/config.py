@@ -332,6 +332,33 @@ def _check_paint_dataset(config: dict, name: str, where: str) -> None:
                               "characters): shorten the entry's name")
 
 
+def _check_images_plant(name: str, ds: dict, where: str) -> None:
+    """An images dataset with `heliostats` (a plant in one CSV, its `heliostat` column) takes each
+    heliostat's geometry from heliostat_properties with {heliostat} in its path (with origin_wgs84),
+    every such file exists and every generated dataset name is valid."""
+    from helioflow.data.images import HELIOSTAT_PLACEHOLDER, csv_heliostats
+
+    if "heliostat" in ds or HELIOSTAT_PLACEHOLDER not in ds.get("heliostat_properties", ""):
+        raise ConfigError(f"{where}: a plant's heliostats stand at their own positions: give heliostat_properties "
+                          f"with {HELIOSTAT_PLACEHOLDER} in its path (e.g. paint/{HELIOSTAT_PLACEHOLDER}/heliostat-"
+                          "properties.json, each heliostat's own) and origin_wgs84, not one inline heliostat")
+    if "origin_wgs84" not in ds:
+        raise ConfigError(f"{where}: heliostat_properties {ds['heliostat_properties']!r} gives WGS84 positions; "
+                          "add origin_wgs84: [latitude, longitude, altitude], the origin of the target's ENU frame")
+    try:
+        heliostats = csv_heliostats(ds["csv"], ds["heliostats"])
+    except DataError as exc:
+        raise ConfigError(f"{where}.heliostats: {exc}") from None
+    for heliostat in heliostats:
+        path = Path(ds["heliostat_properties"].replace(HELIOSTAT_PLACEHOLDER, heliostat))
+        if not path.is_file():
+            raise ConfigError(f"{where}.heliostat_properties: {path} (heliostat {heliostat!r}) does not exist")
+        if not _NAME.fullmatch(f"{name}_{heliostat}"):
+            raise ConfigError(f"{where}.heliostats: the dataset of heliostat {heliostat!r} would be named "
+                              f"{name}_{heliostat!r}, not a valid name (letters, digits, '_', '.', '-', at most 64 "
+                              "characters): rename it in the CSV or shorten the entry's name")
+
+
 def _paint_selection(ds: dict) -> list[str]:
     """The heliostat folders a PAINT dataset takes (none if its selection is itself in error)."""
     if "heliostat" in ds:
@@ -353,20 +380,22 @@ def _check_images_dataset(config: dict, name: str, where: str) -> None:
     or heliostat_properties with origin_wgs84) that sees the target, splits or holdout (not both);
     its folder and CSV exist, the CSV's timestamps have a site, and its heliostat file
     (surfaces/<dataset>.h5) is no other heliostat's."""
-    from helioflow.data.images import ERROR_KEYS, TIMESTAMP, check_files, check_ideal, read_table
+    from helioflow.data.images import ERROR_KEYS, TIMESTAMP, check_files, check_ideal, csv_heliostats, read_table
 
     ds = config["datasets"][name]
-    extra = sorted(((_TRACE_KEYS - {"splits"}) | {"paint_dir", "heliostats", "targets"}) & set(ds))
+    extra = sorted(((_TRACE_KEYS - {"splits"}) | {"paint_dir", "targets"}) & set(ds))
     if extra:
         raise ConfigError(f"{where}: key {extra[0]!r} is not for own images; a dataset with source: images takes "
                           f"{', '.join(_IMAGES_TAKES)}")
     if not any(abs(x) > 0 for x in ds["target"]["normal"]):
         raise ConfigError(f"{where}.target.normal = {ds['target']['normal']}: expected a non-zero vector")
-    if ("heliostat" in ds) == ("heliostat_properties" in ds):
+    if "heliostats" in ds:
+        _check_images_plant(name, ds, where)
+    elif ("heliostat" in ds) == ("heliostat_properties" in ds):
         which = "both heliostat and" if "heliostat" in ds else "neither heliostat nor"
         raise ConfigError(f"{where}: {which} heliostat_properties; give exactly one: the geometry inline (heliostat: "
                           "the keys of a heliostats entry) or a PAINT-style heliostat-properties.json")
-    if "heliostat_properties" in ds:
+    elif "heliostat_properties" in ds:
         if "origin_wgs84" not in ds:
             raise ConfigError(f"{where}: heliostat_properties {ds['heliostat_properties']!r} gives WGS84 positions; "
                               "add origin_wgs84: [latitude, longitude, altitude], the origin of the target's ENU frame")
@@ -396,7 +425,8 @@ def _check_images_dataset(config: dict, name: str, where: str) -> None:
         raise ConfigError(f"{where}.images_dir = {ds['images_dir']!r}: no such folder")
     try:
         columns = read_table(ds["csv"])[0]
-        check_files(ds["csv"], ds["images_dir"])
+        for heliostat in csv_heliostats(ds["csv"], ds["heliostats"]) if "heliostats" in ds else [None]:
+            check_files(ds["csv"], ds["images_dir"], heliostat)
     except DataError as exc:
         raise ConfigError(f"{where}.csv: {exc}") from None
     if TIMESTAMP in columns and not {"azimuth_deg", "elevation_deg"} <= set(columns) and "site" not in ds:

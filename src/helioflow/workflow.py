@@ -253,6 +253,7 @@ def import_images_params(config: dict, dataset: str) -> dict:
         "holdout": copy.deepcopy(ds.get("holdout") or []),
         "seed": config["seed"],
         "dni_w_m2": config["dni_w_m2"],
+        **({"csv_heliostat": ds["csv_heliostat"]} if "csv_heliostat" in ds else {}),  # a plant's: its rows
     }
 
 
@@ -270,7 +271,8 @@ def import_images_inputs(config: dict, dataset: str) -> dict:
     p = import_images_params(config, dataset)
     from helioflow.data.images import image_files
 
-    files = {"csv": p["csv"], "images": image_files(p["csv"], p["images_dir"])}
+    files = {"csv": p["csv"]}
+    files["images"] = image_files(p["csv"], p["images_dir"], p.get("csv_heliostat"))
     if p.get("heliostat_properties"):
         files["properties"] = p["heliostat_properties"]
     return files
@@ -746,7 +748,7 @@ def leave_one_out_ids(dataset: dict) -> list[str]:
         from helioflow.data.images import image_ids
 
         try:
-            ids = image_ids(dataset["csv"])
+            ids = image_ids(dataset["csv"], dataset.get("csv_heliostat"))
         except DataError as exc:
             raise ConfigError(f"holdout: leave_one_out needs the image ids: {exc}") from None
         if len(ids) < 2:
@@ -814,21 +816,35 @@ PLANT_KEY = "plant_of"  # marks a generated heliostat dataset with its plant ent
 
 
 def expand_plants(config: dict) -> dict:
-    """The config (a copy) with every PAINT dataset that takes a plant (`heliostats`: all, a glob or a
-    list; data.paint.plant_heliostats) replaced, in place in `datasets`' order, by one dataset per
-    heliostat named '<entry>_<heliostat>': the entry with heliostat set and marked with PLANT_KEY =
-    the entry's name, so that the existing import, train, evaluate and diagnose rules run per
-    heliostat. A generated name already in use raises ConfigError."""
-    from helioflow.data.paint import plant_heliostats  # here: `helioflow --help` starts without torch
+    """The config (a copy) with every dataset that takes a plant (`heliostats`: all, a glob or a list)
+    replaced, in place in `datasets`' order, by one dataset per heliostat named '<entry>_<heliostat>',
+    marked with PLANT_KEY = the entry's name, so that the existing import, train, evaluate and
+    diagnose rules run per heliostat: a PAINT entry's with `heliostat` set to its folder
+    (data.paint.plant_heliostats), an images entry's with `csv_heliostat` set to its name in the
+    CSV's heliostat column (data.images.csv_heliostats) and heliostat_properties to its own file.
+    A generated name already in use raises ConfigError."""
+    # here: `helioflow --help` starts without torch
+    from helioflow.data.images import HELIOSTAT_PLACEHOLDER, csv_heliostats
+    from helioflow.data.paint import plant_heliostats
 
     def members(name: str, ds: dict) -> dict | None:
         if "heliostats" not in ds:
             return None
         entry = {k: v for k, v in ds.items() if k != "heliostats"}
+        if ds["source"] == "images":
+            return {f"{name}_{h}": {**copy.deepcopy(entry), "csv_heliostat": h, PLANT_KEY: name,
+                                    "heliostat_properties": ds["heliostat_properties"].replace(HELIOSTAT_PLACEHOLDER, h)}
+                    for h in csv_heliostats(ds["csv"], ds["heliostats"])}
         return {f"{name}_{h}": {**copy.deepcopy(entry), "heliostat": h, PLANT_KEY: name}
                 for h in plant_heliostats(ds["paint_dir"], ds["heliostats"])}
 
     return _expand_datasets(config, members, "generated")
+
+
+def plant_heliostat(config: dict, dataset: str) -> str:
+    """A plant dataset's heliostat as the plant names it: its PAINT folder or its name in the CSV."""
+    ds = config["datasets"][dataset]
+    return ds.get("csv_heliostat") or ds["heliostat"]
 
 
 def plant_groups(config: dict) -> dict[str, list[str]]:
@@ -859,7 +875,7 @@ def plant_table_spec(config: dict) -> dict:
                           f"not in networks ({', '.join(config.get('networks') or {}) or 'none'})")
     r = results_dir(config)
     return {"pointing_limit_mrad": settings["pointing_limit_mrad"],
-            "heliostats": [{"plant": plant, "heliostat": config["datasets"][d]["heliostat"], "dataset": d,
+            "heliostats": [{"plant": plant, "heliostat": plant_heliostat(config, d), "dataset": d,
                             "dataset_path": f"{r}/datasets/{d}.h5", "model_path": f"{r}/models/{d}/{settings['model']}.pt",
                             "diagnosis_path": f"{r}/diagnosis/{d}.json"}
                            for plant, members in plant_groups(config).items() for d in members]}
@@ -906,7 +922,7 @@ def plant_shared_spec(config: dict) -> dict:
         return {"settings": {}, "device": config["device"], "plants": {}, "sizes": {}}
     groups = plant_groups(config)
     return {"settings": settings, "device": config["device"],
-            "plants": {plant: [{"heliostat": config["datasets"][d]["heliostat"], "dataset_path": f"{r}/datasets/{d}.h5",
+            "plants": {plant: [{"heliostat": plant_heliostat(config, d), "dataset_path": f"{r}/datasets/{d}.h5",
                                 "heliostat_path": heliostat_path(config, d), "effects": model_effects(config, d)}
                                for d in evenly(members, settings["heliostats"])]
                        for plant, members in groups.items()},
@@ -955,15 +971,23 @@ def plant_flux_settings(config: dict) -> dict | None:
     return {**copy.deepcopy(PLANT_FLUX_DEFAULTS), **(copy.deepcopy(flux) if isinstance(flux, dict) else {})}
 
 
+def _paint_plants(config: dict) -> dict[str, list[str]]:
+    """plant_groups of the PAINT plant entries: only a PAINT directory holds the whole field's geometry
+    (an images plant's CSV and properties files hold its calibrated heliostats only), so only these
+    get a flux map."""
+    return {p: m for p, m in plant_groups(config).items() if config["datasets"][m[0]]["source"] == "paint"}
+
+
 def plant_flux_paths(config: dict, kind: str = "png") -> list[str]:
-    """plant/flux/<plant entry>.<kind> (kind h5, png or json) of every plant entry, when the maps are made."""
+    """plant/flux/<plant entry>.<kind> (kind h5, png or json) of every PAINT plant entry, when the maps
+    are made."""
     if plant_flux_settings(config) is None:
         return []
-    return [f"{results_dir(config)}/plant/flux/{plant}.{kind}" for plant in plant_groups(config)]
+    return [f"{results_dir(config)}/plant/flux/{plant}.{kind}" for plant in _paint_plants(config)]
 
 
 def plant_flux_spec(config: dict) -> dict:
-    """Parameters and inputs of rule `plant_flux` (field.plant.compose_plant), per plant entry: its PAINT
+    """Parameters and inputs of rule `plant_flux` (field.plant.compose_plant), per PAINT plant entry: its PAINT
     directory, model effects (those of its first heliostat's dataset: the entry's) and every
     calibrated heliostat's physics model (plant.model, as the plant table)."""
     settings = plant_flux_settings(config)
@@ -975,7 +999,7 @@ def plant_flux_spec(config: dict) -> dict:
                     "dni_w_m2": config["dni_w_m2"],
                     "calibrated": [{"heliostat": h["heliostat"], "model_path": h["model_path"]}
                                    for h in model if h["plant"] == plant]}
-            for plant, members in plant_groups(config).items()}
+            for plant, members in _paint_plants(config).items()}
 
 
 def plant_flux_inputs(config: dict, plant: str) -> list[str]:

@@ -11,6 +11,8 @@ rule diagnose:
         residuals=f"{RESULTS}/figures/diagnosis/{{dataset}}_residuals.png",
         location=f"{RESULTS}/figures/diagnosis/{{dataset}}_location.png",
         ledger=f"{RESULTS}/figures/diagnosis/{{dataset}}_ledger.png",
+    wildcard_constraints:
+        dataset=PER_HELIOSTAT_DATASET,
     params:
         torch_threads=TORCH_THREADS,
         spec=lambda wc: json.dumps(diagnose_params(config, wc.dataset)),

@@ -11,7 +11,7 @@ rule import_images:
     output:
         dataset=f"{RESULTS}/datasets/{{dataset}}.h5",
     wildcard_constraints:
-        dataset=name_pattern(images_datasets(config)),
+        dataset=unbatched(images_datasets(config)),
     params:
         spec=lambda wc: json.dumps(import_images_params(config, wc.dataset)),
     log:
@@ -30,7 +30,7 @@ rule images_heliostat:
     output:
         geometry=f"{RESULTS}/surfaces/{{heliostat}}.h5",
     wildcard_constraints:
-        heliostat=name_pattern(images_heliostats(config)),
+        heliostat=unbatched(images_heliostats(config), BATCHED_HELIOSTATS),
     params:
         spec=lambda wc: json.dumps(images_heliostat_params(config, wc.heliostat)),
     log:

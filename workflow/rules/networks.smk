@@ -6,6 +6,8 @@ rule train:
         model=f"{RESULTS}/models/{{dataset}}/{{model}}.pt",
         curve=f"{RESULTS}/models/{{dataset}}/{{model}}_curve.csv",
         curve_figure=f"{RESULTS}/models/{{dataset}}/{{model}}_curve.png",
+    wildcard_constraints:
+        dataset=PER_HELIOSTAT_DATASET,
     params:
         torch_threads=lambda wc: train_threads(config, wc.dataset, wc.model),
         spec=lambda wc: json.dumps(train_params(config, wc.dataset, wc.model)),
@@ -29,6 +31,8 @@ rule evaluate:
         per_image=f"{RESULTS}/metrics/{{dataset}}/{{model}}.csv",
         grid=f"{RESULTS}/figures/{{dataset}}/{{model}}_samples.png",
         psnr=f"{RESULTS}/figures/{{dataset}}/{{model}}_psnr.png",
+    wildcard_constraints:
+        dataset=PER_HELIOSTAT_DATASET,
     params:
         torch_threads=SHORT_JOB_THREADS,
         spec=lambda wc: json.dumps(evaluate_params(config)),

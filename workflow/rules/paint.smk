@@ -10,7 +10,7 @@ rule import_paint:
     output:
         dataset=f"{RESULTS}/datasets/{{dataset}}.h5",
     wildcard_constraints:
-        dataset=name_pattern(paint_datasets(config)),
+        dataset=unbatched(paint_datasets(config)),
     params:
         spec=lambda wc: json.dumps(import_paint_params(config, wc.dataset)),
     log:
@@ -29,7 +29,7 @@ rule paint_heliostat:
     output:
         geometry=f"{RESULTS}/surfaces/{{heliostat}}.h5",
     wildcard_constraints:
-        heliostat=name_pattern(paint_heliostats(config)),
+        heliostat=unbatched(paint_heliostats(config), BATCHED_HELIOSTATS),
     params:
         spec=lambda wc: json.dumps(paint_heliostat_params(config, wc.heliostat)),
     log:

@@ -41,6 +41,10 @@ Input (docs/data.md, "Your own images"):
   whose WGS84 positions become ENU metres around ``origin_wgs84`` [lat, lon, alt] (the origin of the
   target's coordinates, e.g. the tower base). The geometry file is the dataset's heliostat:
   surfaces/<dataset>.h5 (surfaces/<dataset>.h5 of the parent for leave-one-out folds).
+- A plant in one CSV: a ``heliostat`` column names each image's heliostat; the config entry's
+  ``heliostats`` (all, a glob or a list of its values) becomes one dataset per heliostat
+  (workflow.expand_plants), each reading only its heliostat's rows (``csv_heliostat``) and its own
+  geometry (``heliostat_properties`` with ``{heliostat}`` in the path).
 - Splits: ``splits`` (the rules of a traced dataset, data.splits.assign_splits), or ``holdout``
   (image ids, labelled as PAINT's: paint.split_labels), or neither (every image trains).
 
@@ -56,6 +60,7 @@ This module imports torch and astropy only where an import needs them: the workf
 from __future__ import annotations
 
 import csv
+import fnmatch
 import logging
 import math
 import os
@@ -84,6 +89,8 @@ from helioflow.physics.geometry import wgs84_to_enu
 log = logging.getLogger(__name__)
 
 FILE, ID, AZIMUTH, ELEVATION, TIMESTAMP = "file", "id", "azimuth_deg", "elevation_deg", "timestamp"
+HELIOSTAT = "heliostat"  # the column naming each image's heliostat in a plant's CSV
+HELIOSTAT_PLACEHOLDER = "{heliostat}"  # in a plant's heliostat_properties path: each heliostat's name
 ERROR_KEYS = ("deformation_mm", "tracking_error_mrad", "canting_error_mrad")  # must be 0 inline
 TARGET_NAME = "target"  # the one target of an images dataset (attribute target_name)
 ASPECT_TOLERANCE = 0.02  # image and target width : height ratios differing by more: a warning
@@ -107,9 +114,11 @@ class Row:
 # --- the CSV (also read by snakemake's input functions) ------------------------------------------
 
 
-def read_table(csv_path: str | os.PathLike) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
+def read_table(csv_path: str | os.PathLike,
+               heliostat: str | None = None) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
     """(columns, [(line, {column: value})]) of a CSV with a header row, names and values stripped;
-    DataError if it is missing, unreadable, has no header, no `file` column or no rows."""
+    with `heliostat`, only the rows whose `heliostat` column names it. DataError if it is missing,
+    unreadable, has no header, no `file` column or no rows (of that heliostat)."""
     path = Path(csv_path)
     if not path.is_file():
         raise DataError(f"{path} does not exist (expected the CSV of the calibration images)")
@@ -135,7 +144,41 @@ def read_table(csv_path: str | os.PathLike) -> tuple[list[str], list[tuple[int, 
         if len(cells) > len(columns):
             raise DataError(f"{path} line {line}: {len(cells)} values, but the header has {len(columns)} columns")
         table.append((line, {c: (cells[i].strip() if i < len(cells) else "") for i, c in enumerate(columns)}))
-    return columns, table
+    if heliostat is None:
+        return columns, table
+    if HELIOSTAT not in columns:
+        raise DataError(f"{path}: no column {HELIOSTAT!r} (columns found: {', '.join(columns)}); a plant's CSV names "
+                        "each image's heliostat there")
+    mine = [(line, row) for line, row in table if row[HELIOSTAT] == heliostat]
+    if not mine:
+        raise DataError(f"{path}: no image of heliostat {heliostat!r} in column {HELIOSTAT!r}")
+    return columns, mine
+
+
+def csv_heliostats(csv_path: str | os.PathLike, selection) -> list[str]:
+    """The heliostats a plant entry takes from its CSV's `heliostat` column, in the order they first
+    appear: `all`, a glob over the names, or a list of them (in its order); DataError naming the
+    column or the name when the column is missing or blank in a row, or the selection finds none."""
+    path = Path(csv_path)
+    columns, table = read_table(path)
+    if HELIOSTAT not in columns:
+        raise DataError(f"{path}: no column {HELIOSTAT!r} (columns found: {', '.join(columns)}); a plant's CSV "
+                        "names each image's heliostat there")
+    for line, row in table:
+        if not row[HELIOSTAT]:
+            raise DataError(f"{path} line {line}: column {HELIOSTAT!r} is empty; expected the image's heliostat")
+    names = list(dict.fromkeys(row[HELIOSTAT] for _, row in table))
+    if isinstance(selection, list):
+        missing = [h for h in selection if h not in names]
+        if missing:
+            raise DataError(f"{path}: no image of heliostat {missing[0]!r} in column {HELIOSTAT!r} "
+                            f"(heliostats there: {', '.join(names)})")
+        return list(dict.fromkeys(selection))
+    chosen = names if selection == "all" else [h for h in names if fnmatch.fnmatchcase(h, selection)]
+    if not chosen:
+        raise DataError(f"{path}: {selection!r} selects no heliostat of column {HELIOSTAT!r} "
+                        f"(heliostats there: {', '.join(names)})")
+    return chosen
 
 
 def _ids(csv_path: Path, table) -> list[tuple[int, str, str]]:
@@ -156,12 +199,13 @@ def _ids(csv_path: Path, table) -> list[tuple[int, str, str]]:
     return out
 
 
-def check_files(csv_path: str | os.PathLike, images_dir: str | os.PathLike) -> None:
+def check_files(csv_path: str | os.PathLike, images_dir: str | os.PathLike, heliostat: str | None = None) -> None:
     """DataError naming the CSV line when a row's file lies outside images_dir once '..' and links
     are resolved (an absolute path, '../', a link to elsewhere: nothing outside the folder is opened),
-    or when two rows name the same file (one image, two sun positions)."""
+    or when two rows name the same file (one image, two sun positions); of one heliostat's rows
+    when given (read_table)."""
     csv_path = Path(csv_path)
-    _check_paths(csv_path, images_dir, _ids(csv_path, read_table(csv_path)[1]))
+    _check_paths(csv_path, images_dir, _ids(csv_path, read_table(csv_path, heliostat)[1]))
 
 
 def _check_paths(csv_path: Path, images_dir: str | os.PathLike, ids: list[tuple[int, str, str]]) -> None:
@@ -179,16 +223,17 @@ def _check_paths(csv_path: Path, images_dir: str | os.PathLike, ids: list[tuple[
         seen[path] = line
 
 
-def image_ids(csv_path: str | os.PathLike) -> list[str]:
-    """The image ids of a CSV, in its order (what holdout and leave-one-out name)."""
-    return [mid for _, mid, _ in _ids(Path(csv_path), read_table(csv_path)[1])]
+def image_ids(csv_path: str | os.PathLike, heliostat: str | None = None) -> list[str]:
+    """The image ids of a CSV (of one heliostat's rows when given), in its order (what holdout and
+    leave-one-out name)."""
+    return [mid for _, mid, _ in _ids(Path(csv_path), read_table(csv_path, heliostat)[1])]
 
 
-def image_files(csv_path: str | os.PathLike, images_dir: str | os.PathLike) -> list[str]:
-    """The image paths a CSV lists (images_dir/file), in its order; [] when the CSV cannot be read
-    (the import then reports why)."""
+def image_files(csv_path: str | os.PathLike, images_dir: str | os.PathLike, heliostat: str | None = None) -> list[str]:
+    """The image paths a CSV lists (images_dir/file; of one heliostat's rows when given), in its
+    order; [] when the CSV cannot be read (the import then reports why)."""
     try:
-        table = read_table(csv_path)[1]
+        table = read_table(csv_path, heliostat)[1]
     except DataError:
         return []
     return [str(Path(images_dir) / row[FILE]) for _, row in table if row[FILE]]
@@ -256,11 +301,12 @@ def _number(csv_path: Path, line: int, row: dict, column: str) -> float:
 
 
 def read_rows(csv_path: str | os.PathLike, images_dir: str | os.PathLike,
-              site: dict | None = None) -> tuple[list[Row], str]:
-    """Every CSV row with its sun position, and where the sun came from (words); DataError naming the
-    file and line of the first bad value (module docstring). Does not open the images."""
+              site: dict | None = None, heliostat: str | None = None) -> tuple[list[Row], str]:
+    """Every CSV row (of one heliostat when given) with its sun position, and where the sun came from
+    (words); DataError naming the file and line of the first bad value (module docstring). Does not
+    open the images."""
     csv_path, images_dir = Path(csv_path), Path(images_dir)
-    columns, table = read_table(csv_path)
+    columns, table = read_table(csv_path, heliostat)
     angles = [c for c in (AZIMUTH, ELEVATION) if c in columns]
     if len(angles) == 1:
         other = ELEVATION if angles[0] == AZIMUTH else AZIMUTH
@@ -401,7 +447,7 @@ def build_dataset(spec: dict, geometry):
     """The CalibrationDataset of the images a spec names (resampled, each divided by its peak)."""
 
     csv_path = Path(spec["csv"])
-    rows, sun_from = read_rows(csv_path, spec["images_dir"], spec.get("site"))
+    rows, sun_from = read_rows(csv_path, spec["images_dir"], spec.get("site"), spec.get("csv_heliostat"))
     resolution = tuple(spec["resolution"])
     plane = target_plane(spec["target"], f"datasets.{spec['dataset']}.target")
     position = geometry.position.numpy()
@@ -455,6 +501,7 @@ def build_dataset(spec: dict, geometry):
         "source": "own calibration images (helioflow import-images)",
         "images_dir": str(spec["images_dir"]),
         "csv": str(csv_path),
+        **({"csv_heliostat": spec["csv_heliostat"]} if spec.get("csv_heliostat") else {}),
         "sun_from": sun_from,
         "site": spec.get("site"),
         "units": {"images": "relative (grey level / full scale, each image divided by its own peak)",

@@ -1,0 +1,29 @@
+# A plant's heliostats in groups of config plant.group_size (helioflow/batch.py): one rule per group
+# and step (import, train, evaluate, diagnose), named '<step>_batch_<plant>_g<k>', runs the step for
+# the group in one process and writes each heliostat's outputs and log where the per-heliostat rules
+# do; those rules leave the batched datasets (their wildcard constraints in common.smk). Rerun a
+# group's step with `--forcerun <step>_batch_<plant>_g<k>`.
+from helioflow.batch import batch_job, batch_stages, plant_batches, rule_name
+
+for _batch in plant_batches(config):
+    for _stage in batch_stages(config):
+        _job = batch_job(config, _stage, _batch)
+
+        rule:
+            name:
+                rule_name(_stage, _batch)
+            input:
+                _job["input"],
+            output:
+                _job["output"],
+            params:
+                commands=json.dumps(_job["commands"]),
+                torch_threads=SHORT_JOB_THREADS if _stage in ("import", "evaluate") else TORCH_THREADS,
+            log:
+                f"{RESULTS}/logs/batch/{_stage}/{_batch}.log",
+                _job["logs"],
+            benchmark:
+                f"{RESULTS}/benchmarks/batch_{_stage}/{_batch}.tsv"
+            threads: SHORT_JOB_THREADS if _stage in ("import", "evaluate") else TORCH_THREADS
+            shell:
+                "helioflow --threads {params.torch_threads:q} batch --commands {params.commands:q} > {log[0]:q} 2>&1"
