@@ -4,8 +4,10 @@ Per heliostat the pipeline runs five short-lived steps (import, geometry, train,
 diagnose); each process starts by importing torch and helioflow (3-5 s), which for a plant of
 hundreds is a fifth of the work. With `plant.group_size: N` the rules in workflow/rules/batches.smk
 run each step for N heliostats of a plant entry in one process (`helioflow batch`), writing every
-heliostat's outputs and log where the per-heliostat rules write them. A failed group is rerun
-whole: group_size 1 (the default) keeps one job per heliostat and step.
+heliostat's outputs and log where the per-heliostat rules write them. A group's job runs on one
+torch thread, so that snakemake's -j runs groups side by side (on these small fits two one-thread
+jobs do 1.5x the work of one two-thread job). A failed group is rerun whole: group_size 1 (the
+default) keeps one job per heliostat and step.
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ import pytest
 from paint_world import plant_worlds, write_plant
 
 from helioflow.data.paint import import_paint
-from helioflow.diagnosis.shared import CLIP, Level, plant_shared, with_plant
+from helioflow.diagnosis.shared import CLIP, Level, RangeTest, plant_shared, range_verdict, with_plant
 from helioflow.errors import DataError
 from helioflow.workflow import SHARED_DEFAULTS
 
@@ -85,6 +85,37 @@ def test_the_shared_level_is_where_the_heliostats_agree_from_below():
     assert same.kept == [True] * 3 and same.value == pytest.approx(1.5) and same.sigma >= 0.02 / 3 ** 0.5
     # a value without a sigma (not determined) gets the median sigma, not infinite weight
     assert Level.of([1.5, 1.5, 2.0], [0.02, float("nan"), 0.02]).value == pytest.approx(1.5)
+
+
+@pytest.mark.parametrize("told_mrad", [2.0, 2.51])
+def test_a_blur_that_grows_with_slant_range_is_a_sun_told_too_narrow(told_mrad):
+    """Each heliostat's own blur with the sun told `told_mrad` (true 2.51) and the camera fitted, as
+    the plant fit's levelling sees it: b_i^2 = 1.5^2 + (2.51^2 - told^2) (r_i / p)^2, a third of the
+    heliostats widened by their own effects, noise of their sigma. The level alone blames the camera
+    for a sun told too narrow; the line over the slant ranges (50-86 m, as plant30's) separates them."""
+    rng = np.random.default_rng(1)
+    ranges, pixel = np.linspace(50.0, 86.0, 30), 8.625 / 64  # Juelich's upper target over 64 pixels
+    sigma = rng.uniform(0.03, 0.05, 30)
+    widened = np.arange(30) % 3 == 1
+    deficit = 2.51 ** 2 - told_mrad ** 2
+    variance = 1.5 ** 2 + deficit * (ranges * 1e-3 / pixel) ** 2 + widened * rng.uniform(0.3, 0.9, 30)
+    level = Level.of((np.sqrt(variance) + rng.normal(0.0, sigma)).tolist(), sigma.tolist())
+    test = RangeTest.of(level, ranges.tolist(), pixel)
+    assert abs(test.deficit_mrad2 - deficit) <= 3 * test.sigma_mrad2 and test.sigma_mrad2 <= 0.8, test
+    assert abs(test.blur_px - 1.5) <= max(3 * test.blur_sigma_px, 0.05), test
+    assert sum(not k for k, w in zip(test.kept, widened) if w) >= widened.sum() / 2  # the widened set aside
+    width, width_sigma = test.sun_width(told_mrad)
+    words = range_verdict(test, "", {"sunshape": {"kind": "gaussian", "sigma_mrad": told_mrad}})
+    if told_mrad == 2.51:  # told right: the line is flat, the sun stays
+        assert not test.significant and "agrees with the camera" in words and "sigma, over slant ranges of 50-86 m" in words
+    else:  # told too narrow: the level takes a wider blur; the line names the sun's width
+        assert level.value > 1.6 and test.significant and abs(width - 2.51) <= max(3 * width_sigma, 0.1)
+        assert f"sunshape.sigma_mrad = {width:.3f}" in words and "wider than configured (2 mrad)" in words
+    assert "not tested against the camera (no camera)" in range_verdict(None, "no camera", {})
+    hint = RangeTest(3.91, 1.37, 1.503, 0.095, ranges.tolist(), [True] * 30)  # plant30 told 2.0 mrad (docs/results.md)
+    words = range_verdict(hint, "", {"sunshape": {"kind": "gaussian", "sigma_mrad": 2.0}})
+    assert not hint.significant and "2.9 sigma" in words and "may be wider than configured (2 mrad" in words
+    assert "Not renamed" in words and "agrees" not in words
 
 
 def test_a_missing_plant_fit_is_one_clear_error(tmp_path):

@@ -2,7 +2,9 @@
 # and step (import, train, evaluate, diagnose), named '<step>_batch_<plant>_g<k>', runs the step for
 # the group in one process and writes each heliostat's outputs and log where the per-heliostat rules
 # do; those rules leave the batched datasets (their wildcard constraints in common.smk). Rerun a
-# group's step with `--forcerun <step>_batch_<plant>_g<k>`.
+# group's step with `--forcerun <step>_batch_<plant>_g<k>`. A group's job runs on one torch thread,
+# so that -j runs groups side by side: on these small fits two jobs of one thread each do 1.5x the
+# work of one job of two threads (docs/benchmarks.md).
 from helioflow.batch import batch_job, batch_stages, plant_batches, rule_name
 
 for _batch in plant_batches(config):
@@ -18,12 +20,12 @@ for _batch in plant_batches(config):
                 _job["output"],
             params:
                 commands=json.dumps(_job["commands"]),
-                torch_threads=SHORT_JOB_THREADS if _stage in ("import", "evaluate") else TORCH_THREADS,
+                torch_threads=SHORT_JOB_THREADS,
             log:
                 f"{RESULTS}/logs/batch/{_stage}/{_batch}.log",
                 _job["logs"],
             benchmark:
                 f"{RESULTS}/benchmarks/batch_{_stage}/{_batch}.tsv"
-            threads: SHORT_JOB_THREADS if _stage in ("import", "evaluate") else TORCH_THREADS
+            threads: SHORT_JOB_THREADS
             shell:
                 "helioflow --threads {params.torch_threads:q} batch --commands {params.commands:q} > {log[0]:q} 2>&1"

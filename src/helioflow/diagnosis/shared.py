@@ -39,6 +39,18 @@ a slope error, a canting or a tracking error is each heliostat's own. The plant 
    Beside it, what each heliostat alone makes of it (its own fit with the value free: the
    confounded answer one heliostat gets) and whether the level kept it.
 
+7. The sun against the camera, over the slant ranges (`RangeTest`). Levelled heliostat by heliostat,
+   a sun told too narrow shows as a wider camera blur: each heliostat alone cannot tell the two
+   apart. Across heliostats it can: the blur is the same number of pixels for all of them, while
+   the sun's angular width spreads a spot in proportion to the heliostat's slant range r. Variances
+   add, so each heliostat's own blur with the camera fitted (b_i, px) is b_i^2 = b^2 + delta (r_i / p)^2,
+   with p the target's pixel (m) and delta the sun's angular variance the model lacks (mrad^2; < 0:
+   told too wide). A straight line of b_i^2 against (r_i / p)^2, weighted by their sigma and clipped
+   from above as the level (own widening also grows with range), gives delta and b; a delta beyond
+   RANGE_SIGNIFICANCE of its sigma renames the sun's width sqrt(sigma_told^2 + delta) with the
+   camera's blur b, unless that refit raises the plant's held-out error. Done for a Gaussian sun
+   (sigma_mrad) beside a shared camera; otherwise the verdict says the sun was not tested.
+
 Every heliostat's physics model and diagnosis then take the shared effects at these values
 (`shared_effects`) and try no change to a shared effect themselves (workflow: plant.shared).
 """
@@ -52,6 +64,7 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from helioflow.data.hdf5 import read_dataset
 from helioflow.data.splits import evenly
@@ -77,6 +90,9 @@ log = logging.getLogger(__name__)
 BOOTSTRAP = 200  # resamplings of the heliostats for the shared level's sigma
 CLIP = 2.5  # a heliostat whose own value lies this many of its sigma above the shared level has a widening of its own
 OWN = "tracking"  # each heliostat's own effects during the plant fit (drt_effects, kinematics only)
+RANGE_SIGNIFICANCE = 3.0  # the sun's variance deficit this many of its sigma from 0: the sun's width is renamed
+RANGE_HINT = 2.0  # ... this many: the verdict says the sun may be off, and what would tell
+BLUR, SUN_WIDTH = "camera.blur_px", "sunshape.sigma_mrad"
 
 
 def is_shared(effect: str) -> bool:
@@ -152,6 +168,58 @@ def clipped_level(v: np.ndarray, s: np.ndarray) -> tuple[float, np.ndarray]:
     return level, kept
 
 
+@dataclass
+class RangeTest:
+    """The sun's width against the camera's blur over the heliostats' slant ranges (module docstring, 7)."""
+
+    deficit_mrad2: float  # delta: the sun's angular variance the model lacks (< 0: told too wide)
+    sigma_mrad2: float  # its sigma (inverse-variance, inflated by the kept heliostats' chi^2 per dof above 1)
+    blur_px: float  # the camera's blur with it: the line's intercept, square-rooted
+    blur_sigma_px: float
+    ranges_m: list[float]  # each heliostat's slant range to the target's centre
+    kept: list[bool]  # whether the line kept it (False: a widening of its own, above the line)
+
+    @classmethod
+    def of(cls, blur: Level, ranges_m: list[float], pixel_m: float) -> RangeTest:
+        """The line b_i^2 = b^2 + delta (r_i / p)^2 through the heliostats' own blurs (`blur`, the
+        camera's level), from the level's kept set, clipped from above until the kept set repeats."""
+        b, s = np.asarray(blur.values, float), np.asarray(blur.sigmas, float)
+        usable = np.isfinite(s) & (s > 0)
+        s = np.where(usable, s, np.median(s[usable]) if usable.any() else 1.0)
+        y, sy = b ** 2, 2.0 * np.abs(b) * s
+        x = (np.asarray(ranges_m, float) * 1e-3 / pixel_m) ** 2  # px^2 per mrad^2
+        design = np.stack([np.ones_like(x), x], 1) / sy[:, None]
+        kept = np.asarray(blur.kept, bool)
+        for _ in range(len(b)):
+            coef = np.linalg.lstsq(design[kept], y[kept] / sy[kept], rcond=None)[0]
+            now = y - design @ coef * sy <= CLIP * sy
+            if (now == kept).all() or now.sum() < 3:
+                break
+            kept = now
+        cov = np.linalg.inv(design[kept].T @ design[kept])
+        chi2 = float((((y[kept] - design[kept] @ coef * sy[kept]) / sy[kept]) ** 2).sum() / max(kept.sum() - 2, 1))
+        cov *= max(chi2, 1.0)
+        intercept = max(float(coef[0]), 0.0)
+        blur_px = math.sqrt(intercept)
+        return cls(float(coef[1]), float(math.sqrt(cov[1, 1])), blur_px,
+                   float(math.sqrt(cov[0, 0]) / (2.0 * max(blur_px, 1e-6))), [float(r) for r in ranges_m],
+                   kept.tolist())
+
+    @property
+    def significant(self) -> bool:
+        return abs(self.deficit_mrad2) > RANGE_SIGNIFICANCE * self.sigma_mrad2
+
+    def sun_width(self, told_mrad: float) -> tuple[float, float]:
+        """(sigma_mrad, its sigma) of the sun with the deficit added to the told width's variance."""
+        width = math.sqrt(max(told_mrad ** 2 + self.deficit_mrad2, 1e-6))
+        return width, self.sigma_mrad2 / (2.0 * width)
+
+
+def slant_range_m(scene: Scene) -> float:
+    """A heliostat's distance to its target's centre (m)."""
+    return float(torch.linalg.norm(scene.heliostat.position - scene.target.center))
+
+
 class PlantFit:
     """The plant's heliostats against one model effect list: the shared changes, fitted jointly."""
 
@@ -219,6 +287,28 @@ class PlantFit:
                 break
             chosen.append(best)
         return chosen
+
+    def refit(self, labels, values: dict[str, float]) -> Joint:
+        """Every heliostat refitted (its own effects) with the changes `labels` at the shared `values`,
+        from its joint fit with those changes."""
+        fixed = with_values(self.effects_with(labels), values)
+        fits = [fit_effects(m.scene, fixed, m.train, self.settings, start=f)
+                for m, f in zip(self.members, self.joint(labels).fits)]
+        joint = Joint(dict(values), fits, [heldout_error(m.scene, f, m.heldout) for m, f in zip(self.members, fits)])
+        log.info("plant + %s at %s: held-out error %.4f", " + ".join(sorted(labels)), values, joint.error)
+        return joint
+
+    def range_test(self, chosen: list[str]) -> tuple[RangeTest | None, str]:
+        """The sun against the camera (module docstring, 7) on the chosen changes' fit, or None and why
+        it was not done."""
+        sun = self.effects.get("sunshape") or {}
+        if BLUR not in self.levels.get(frozenset(chosen), {}):
+            return None, "the camera's blur is not among the shared changes"
+        if sun.get("kind") != "gaussian" or any(self.candidate[c].effect == "sunshape" for c in chosen):
+            return None, "the sun's model is not a Gaussian of configured width"
+        ranges = [slant_range_m(m.scene) for m in self.members]
+        target = self.members[0].scene.target
+        return RangeTest.of(self.levels[frozenset(chosen)][BLUR], ranges, target.width / target.resolution[1]), ""
 
     def sigma(self, key: frozenset) -> dict[str, dict]:
         """Per shared value: its sigma over the plant and each heliostat's own answer (module docstring, 6)."""
@@ -302,6 +392,22 @@ def fit_plant(plant: str, members: list[Member], effects: dict, settings: dict, 
         tried.append({"change": c.label, "effect": c.effect, "heldout_error": round(j.error, 5),
                       "relative_reduction": round(1.0 - j.error / max(before, 1e-30), 4),
                       "meaningful": is_meaningful(before, j.error), "shared_values": j.shared})
+    test, why_not = fit.range_test(chosen)
+    sun = range_verdict(test, why_not, effects)
+    changed = {fit.candidate[c].effect for c in chosen}
+    if test is not None and test.significant:
+        width, width_sigma = test.sun_width(float(effects["sunshape"]["sigma_mrad"]))
+        renamed = fit.refit(chosen, {**final.shared, SUN_WIDTH: round(width, 4), BLUR: round(test.blur_px, 4)})
+        if renamed.error <= final.error:
+            final = renamed
+            changed.add("sunshape")
+            values[BLUR] = {**values[BLUR], "value": renamed.shared[BLUR], "sigma": round(test.blur_sigma_px, 5),
+                            "from": "the range test"}
+            values[SUN_WIDTH] = {"value": renamed.shared[SUN_WIDTH], "sigma": round(width_sigma, 5),
+                                 "from": "the range test"}
+        else:
+            sun += (f" Refitted so, the plant's held-out error rises ({renamed.error:.4f} against "
+                    f"{final.error:.4f}): the levelled values are kept.")
     kept = shared_effects(effects, [fit.candidate[c] for c in chosen], final.shared)
     return {
         "heliostats": n_heliostats,
@@ -311,13 +417,47 @@ def fit_plant(plant: str, members: list[Member], effects: dict, settings: dict, 
         "per_heliostat_heldout_error": {m.heliostat: round(e, 5) for m, e in zip(members, final.errors)},
         "changes": chosen,
         "shared": [{"effect": e, "shared_by": REGISTRY[e].shared_by, "params": p,
-                    "changed": e in {fit.candidate[c].effect for c in chosen},
+                    "changed": e in changed,
                     "values": {n: v for n, v in values.items() if n.startswith(e + ".")}}
                    for e, p in kept.items()],
         "effects": kept,
         "tried": tried,
-        "verdict": plant_verdict(len(members), before, final.error, chosen, kept, values),
+        "range_test": None if test is None else {
+            "deficit_mrad2": round(test.deficit_mrad2, 4), "sigma_mrad2": round(test.sigma_mrad2, 4),
+            "significant": test.significant, "blur_px": round(test.blur_px, 4),
+            "blur_sigma_px": round(test.blur_sigma_px, 5), "kept": int(sum(test.kept)),
+            "ranges_m": {m.heliostat: round(r, 2) for m, r in zip(members, test.ranges_m)}},
+        "verdict": plant_verdict(len(members), before, final.error, chosen, kept, values) + " " + sun,
     }
+
+
+def range_verdict(test: RangeTest | None, why_not: str, effects: dict) -> str:
+    """What the range test (module docstring, 7) says of the sun against the camera, in words: the
+    told sun agrees (within RANGE_HINT sigma), may be off (between RANGE_HINT and RANGE_SIGNIFICANCE
+    sigma: not renamed, and what would tell), or is renamed."""
+    if test is None:
+        return (f"The sun was not tested against the camera ({why_not}): a sun told too narrow or too wide would show "
+                "here as a wider or narrower blur.")
+    span = f"{min(test.ranges_m):.0f}-{max(test.ranges_m):.0f} m"
+    z = abs(test.deficit_mrad2) / max(test.sigma_mrad2, 1e-12)
+    numbers = (f"the sun's variance deficit {test.deficit_mrad2:+.2f} +- {test.sigma_mrad2:.2f} mrad^2, {z:.1f} sigma, "
+               f"over slant ranges of {span}, {sum(test.kept)} of {len(test.kept)} heliostats on the line")
+    told = float(effects["sunshape"]["sigma_mrad"])
+    if z < RANGE_HINT:
+        return (f"The sun as configured ({told:g} mrad) agrees with the camera: the blur the heliostats need does not "
+                f"grow or shrink with their slant range ({numbers}).")
+    width, width_sigma = test.sun_width(told)
+    grows = test.deficit_mrad2 > 0
+    line = (f"sunshape.sigma_mrad = {width:.3f} +- {width_sigma:.2g} with camera.blur_px = {test.blur_px:.3f} +- "
+            f"{test.blur_sigma_px:.2g}")
+    if not test.significant:
+        return (f"The blur the heliostats need may {'grow' if grows else 'shrink'} with their slant range ({numbers}; "
+                f"{RANGE_SIGNIFICANCE:g} sigma renames the sun): the sun may be {'wider' if grows else 'narrower'} "
+                f"than configured ({told:g} mrad; the line gives {line}), and the camera's blur then "
+                f"{'smaller' if grows else 'larger'} than levelled. Not renamed; heliostats at longer slant ranges, or "
+                "a measured sunshape, would tell.")
+    return (f"The blur the heliostats need {'grows' if grows else 'shrinks'} with their slant range: the sun is "
+            f"{'wider' if grows else 'narrower'} than configured ({told:g} mrad): {line} ({numbers}).")
 
 
 def plant_verdict(n: int, before: float, after: float, chosen: list[str], kept: dict, values: dict) -> str:
