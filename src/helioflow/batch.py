@@ -18,6 +18,7 @@ import logging
 import re
 import time
 import traceback
+from dataclasses import dataclass
 from pathlib import Path
 
 from helioflow import workflow
@@ -44,18 +45,40 @@ def batched_datasets(config: dict) -> list[str]:
     return [d for members in plant_batches(config).values() for d in members]
 
 
-def batched_heliostats(config: dict) -> dict[str, str]:
-    """{PAINT heliostat: the batch whose import job writes its geometry}: the first batch with it."""
+def batched_heliostats(config: dict, batches: dict[str, list[str]] | None = None) -> dict[str, str]:
+    """{heliostat: the batch whose import job writes its geometry}: the first batch with it (of
+    `batches`, default plant_batches)."""
     owner: dict[str, str] = {}
-    for batch, members in plant_batches(config).items():
+    for batch, members in (plant_batches(config) if batches is None else batches).items():
         for d in members:
             owner.setdefault(workflow.dataset_heliostat(config, d), batch)
     return owner
 
 
+def unbatched(names, batched: set[str]) -> str:
+    """A wildcard regex matching exactly the `names` a per-heliostat rule makes: all but the batched."""
+    return workflow.name_pattern([n for n in names if n not in batched])
+
+
 def rule_name(stage: str, batch: str) -> str:
     """The snakemake rule of a batch's step: '<stage>_batch_<batch>' with '-' and '.' as '_'."""
     return re.sub(r"[^A-Za-z0-9_]", "_", f"{stage}_batch_{batch}")
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """What every batch job is planned from, worked out once: the config, its batches, which batch
+    writes each heliostat's geometry, the results folder."""
+
+    config: dict
+    batches: dict[str, list[str]]
+    owner: dict[str, str]
+    results: str
+
+    @classmethod
+    def of(cls, config: dict) -> _Plan:
+        batches = plant_batches(config)
+        return cls(config, batches, batched_heliostats(config, batches), workflow.results_dir(config))
 
 
 def _command(argv: list[str], log: str) -> dict:
@@ -71,10 +94,10 @@ IMPORTS = {
 }
 
 
-def _import_commands(config: dict, batch: str, r: str) -> tuple[list, list, list]:
+def _import_commands(plan: _Plan, batch: str) -> tuple[list, list, list]:
+    config, r = plan.config, plan.results
     commands, inputs, outputs = [], [], []
-    owner = batched_heliostats(config)
-    for d in plant_batches(config)[batch]:
+    for d in plan.batches[batch]:
         step, rule, params, files, geometry_rule, geometry_params = IMPORTS[config["datasets"][d]["source"]]
         dataset = f"{r}/datasets/{d}.h5"
         commands.append(_command([step, "--spec", json.dumps(params(config, d)), "--output", dataset],
@@ -82,7 +105,7 @@ def _import_commands(config: dict, batch: str, r: str) -> tuple[list, list, list
         inputs += [p for ps in files(config, d).values() for p in ([ps] if isinstance(ps, str) else ps)]
         outputs.append(dataset)
         heliostat = workflow.dataset_heliostat(config, d)
-        if owner[heliostat] == batch:
+        if plan.owner[heliostat] == batch:
             geometry = workflow.heliostat_path(config, d)
             commands.append(_command([step, "--spec", json.dumps(geometry_params(config, heliostat)),
                                       "--heliostat-output", geometry], f"{r}/logs/{geometry_rule}/{heliostat}.log"))
@@ -90,9 +113,10 @@ def _import_commands(config: dict, batch: str, r: str) -> tuple[list, list, list
     return commands, list(dict.fromkeys(inputs)), outputs
 
 
-def _train_commands(config: dict, batch: str, r: str) -> tuple[list, list, list]:
+def _train_commands(plan: _Plan, batch: str) -> tuple[list, list, list]:
+    config, r = plan.config, plan.results
     commands, inputs, outputs = [], [], []
-    for d in plant_batches(config)[batch]:
+    for d in plan.batches[batch]:
         for model in workflow.models(config):
             stem = f"{r}/models/{d}/{model}"
             commands.append(_command(["train", "--spec", json.dumps(workflow.train_params(config, d, model)),
@@ -105,10 +129,11 @@ def _train_commands(config: dict, batch: str, r: str) -> tuple[list, list, list]
     return commands, list(dict.fromkeys(inputs)), outputs
 
 
-def _evaluate_commands(config: dict, batch: str, r: str) -> tuple[list, list, list]:
+def _evaluate_commands(plan: _Plan, batch: str) -> tuple[list, list, list]:
+    config, r = plan.config, plan.results
     commands, inputs, outputs = [], [], []
     spec = json.dumps(workflow.evaluate_params(config))
-    for d in plant_batches(config)[batch]:
+    for d in plan.batches[batch]:
         for model in workflow.models(config):
             files = {"--model": f"{r}/models/{d}/{model}.pt", "--dataset": f"{r}/datasets/{d}.h5",
                      "--metrics": f"{r}/metrics/{d}/{model}.json", "--per-image": f"{r}/metrics/{d}/{model}.csv",
@@ -123,9 +148,10 @@ def _evaluate_commands(config: dict, batch: str, r: str) -> tuple[list, list, li
 DIAGNOSIS_FIGURES = ("signatures", "ranking", "residuals", "location", "ledger")
 
 
-def _diagnose_commands(config: dict, batch: str, r: str) -> tuple[list, list, list]:
+def _diagnose_commands(plan: _Plan, batch: str) -> tuple[list, list, list]:
+    config, r = plan.config, plan.results
     commands, inputs, outputs = [], [], []
-    for d in plant_batches(config)[batch]:
+    for d in plan.batches[batch]:
         figures = {kind: f"{r}/figures/diagnosis/{d}_{kind}.png" for kind in DIAGNOSIS_FIGURES}
         argv = ["diagnose", "--spec", json.dumps(workflow.diagnose_params(config, d)),
                 "--dataset", f"{r}/datasets/{d}.h5", "--heliostat", workflow.heliostat_path(config, d),
@@ -148,9 +174,21 @@ def batch_job(config: dict, stage: str, batch: str) -> dict:
     each command the one the per-heliostat rule runs (its paths are those rules' paths)."""
     if stage not in STAGE_COMMANDS:
         raise ConfigError(f"no batched step {stage!r}; steps: {', '.join(BATCH_STAGES)}")
-    if batch not in plant_batches(config):
-        raise ConfigError(f"no batch {batch!r}; batches: {', '.join(plant_batches(config)) or 'none (plant.group_size 1)'}")
-    commands, inputs, outputs = STAGE_COMMANDS[stage](config, batch, workflow.results_dir(config))
+    plan = _Plan.of(config)
+    if batch not in plan.batches:
+        raise ConfigError(f"no batch {batch!r}; batches: {', '.join(plan.batches) or 'none (plant.group_size 1)'}")
+    return _job(plan, stage, batch)
+
+
+def batch_jobs(config: dict) -> dict[tuple[str, str], dict]:
+    """{(step, batch): batch_job} of every batch and step (batch_stages), planned in one pass (a plant
+    of thousands has hundreds of them)."""
+    plan = _Plan.of(config)
+    return {(stage, batch): _job(plan, stage, batch) for batch in plan.batches for stage in batch_stages(config)}
+
+
+def _job(plan: _Plan, stage: str, batch: str) -> dict:
+    commands, inputs, outputs = STAGE_COMMANDS[stage](plan, batch)
     return {"commands": commands, "input": inputs, "output": outputs, "logs": [c["log"] for c in commands]}
 
 

@@ -5,27 +5,25 @@
 # group's step with `--forcerun <step>_batch_<plant>_g<k>`. A group's job runs on one torch thread,
 # so that -j runs groups side by side: on these small fits two jobs of one thread each do 1.5x the
 # work of one job of two threads (docs/benchmarks.md).
-from helioflow.batch import batch_job, batch_stages, plant_batches, rule_name
+from helioflow.batch import batch_jobs, rule_name
 
-for _batch in plant_batches(config):
-    for _stage in batch_stages(config):
-        _job = batch_job(config, _stage, _batch)
+for (_stage, _batch), _job in batch_jobs(config).items():
 
-        rule:
-            name:
-                rule_name(_stage, _batch)
-            input:
-                _job["input"],
-            output:
-                _job["output"],
-            params:
-                commands=json.dumps(_job["commands"]),
-                torch_threads=SHORT_JOB_THREADS,
-            log:
-                f"{RESULTS}/logs/batch/{_stage}/{_batch}.log",
-                _job["logs"],
-            benchmark:
-                f"{RESULTS}/benchmarks/batch_{_stage}/{_batch}.tsv"
-            threads: SHORT_JOB_THREADS
-            shell:
-                "helioflow --threads {params.torch_threads:q} batch --commands {params.commands:q} > {log[0]:q} 2>&1"
+    rule:
+        name:
+            rule_name(_stage, _batch)
+        input:
+            _job["input"],
+        output:
+            _job["output"],
+        params:
+            commands=json.dumps(_job["commands"]),
+            torch_threads=SHORT_JOB_THREADS,
+        log:
+            f"{RESULTS}/logs/batch/{_stage}/{_batch}.log",
+            _job["logs"],
+        benchmark:
+            f"{RESULTS}/benchmarks/batch_{_stage}/{_batch}.tsv"
+        threads: SHORT_JOB_THREADS
+        shell:
+            "helioflow --threads {params.torch_threads:q} batch --commands {params.commands:q} > {log[0]:q} 2>&1"

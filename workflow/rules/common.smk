@@ -2,7 +2,7 @@
 import json
 import sys
 
-from helioflow.batch import batched_datasets, batched_heliostats
+from helioflow.batch import batched_datasets, batched_heliostats, unbatched
 from helioflow.config import validate_config
 from helioflow.errors import HelioflowError
 from helioflow.workflow import (
@@ -71,15 +71,8 @@ SHORT_JOB_THREADS = 1
 # a plant's heliostats batched by plant.group_size (batches.smk) are left by the per-heliostat rules
 BATCHED_DATASETS = set(batched_datasets(config))
 BATCHED_HELIOSTATS = set(batched_heliostats(config))
-
-
-def unbatched(names, batched=BATCHED_DATASETS):
-    """A wildcard regex matching exactly the names a per-heliostat rule makes: all but the batched."""
-    return name_pattern([n for n in names if n not in batched])
-
-
 # the datasets rules train, evaluate and diagnose make: every one, or every one not batched
-PER_HELIOSTAT_DATASET = unbatched(config["datasets"]) if BATCHED_DATASETS else NAME
+PER_HELIOSTAT_DATASET = unbatched(config["datasets"], BATCHED_DATASETS) if BATCHED_DATASETS else NAME
 
 
 wildcard_constraints:

@@ -11,7 +11,7 @@ rule import_images:
     output:
         dataset=f"{RESULTS}/datasets/{{dataset}}.h5",
     wildcard_constraints:
-        dataset=unbatched(images_datasets(config)),
+        dataset=unbatched(images_datasets(config), BATCHED_DATASETS),
     params:
         spec=lambda wc: json.dumps(import_images_params(config, wc.dataset)),
     log:

@@ -10,7 +10,7 @@ rule import_paint:
     output:
         dataset=f"{RESULTS}/datasets/{{dataset}}.h5",
     wildcard_constraints:
-        dataset=unbatched(paint_datasets(config)),
+        dataset=unbatched(paint_datasets(config), BATCHED_DATASETS),
     params:
         spec=lambda wc: json.dumps(import_paint_params(config, wc.dataset)),
     log:
