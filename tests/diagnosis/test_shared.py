@@ -13,7 +13,15 @@ import pytest
 from paint_world import plant_worlds, write_plant
 
 from helioflow.data.paint import import_paint
-from helioflow.diagnosis.shared import CLIP, Level, RangeTest, plant_shared, range_verdict, with_plant
+from helioflow.diagnosis.shared import (
+    CLIP,
+    Level,
+    RangeTest,
+    plant_shared,
+    plant_verdict,
+    range_verdict,
+    with_plant,
+)
 from helioflow.errors import DataError
 from helioflow.workflow import SHARED_DEFAULTS
 
@@ -116,6 +124,18 @@ def test_a_blur_that_grows_with_slant_range_is_a_sun_told_too_narrow(told_mrad):
     words = range_verdict(hint, "", {"sunshape": {"kind": "gaussian", "sigma_mrad": 2.0}})
     assert not hint.significant and "2.9 sigma" in words and "may be wider than configured (2 mrad" in words
     assert "Not renamed" in words and "agrees" not in words
+
+
+def test_a_sun_renamed_by_the_range_test_is_not_called_kept_as_configured():
+    values = {"camera.blur_px": {"value": 1.503, "sigma": 0.095, "alone": {"P000": {"value": 1.8, "sigma": 0.05,
+                                                                                    "kept": True}},
+                                 "from": "the range test"},
+              "sunshape.sigma_mrad": {"value": 2.81, "sigma": 0.24, "from": "the range test"}}
+    kept = {"camera": {"blur_px": 1.503}, "sunshape": {"kind": "gaussian", "sigma_mrad": 2.81}}
+    words = plant_verdict(30, 0.42, 0.02, ["camera"], {"camera", "sunshape"}, kept, values)
+    assert words.startswith("Shared by the 30 heliostats fitted: camera: the plant's held-out error falls")
+    assert "Kept as configured" not in words
+    assert "Kept as configured: sunshape." in plant_verdict(30, 0.42, 0.02, ["camera"], {"camera"}, kept, {})
 
 
 def test_a_missing_plant_fit_is_one_clear_error(tmp_path):

@@ -427,7 +427,7 @@ def fit_plant(plant: str, members: list[Member], effects: dict, settings: dict, 
             "significant": test.significant, "blur_px": round(test.blur_px, 4),
             "blur_sigma_px": round(test.blur_sigma_px, 5), "kept": int(sum(test.kept)),
             "ranges_m": {m.heliostat: round(r, 2) for m, r in zip(members, test.ranges_m)}},
-        "verdict": plant_verdict(len(members), before, final.error, chosen, kept, values) + " " + sun,
+        "verdict": plant_verdict(len(members), before, final.error, chosen, changed, kept, values) + " " + sun,
     }
 
 
@@ -460,18 +460,21 @@ def range_verdict(test: RangeTest | None, why_not: str, effects: dict) -> str:
             f"{'wider' if grows else 'narrower'} than configured ({told:g} mrad): {line} ({numbers}).")
 
 
-def plant_verdict(n: int, before: float, after: float, chosen: list[str], kept: dict, values: dict) -> str:
-    """One paragraph: what the plant's heliostats share, with the shared values and their sigma."""
+def plant_verdict(n: int, before: float, after: float, chosen: list[str], changed: set[str], kept: dict,
+                  values: dict) -> str:
+    """One paragraph: what the plant's heliostats share (the `chosen` changes; `changed`: the effects
+    they and the range test changed), with the shared values and their sigma."""
     if not chosen:
         words = [f"No change to the shared effects ({', '.join(sorted(kept)) or 'none in the model'}) cuts the "
                  f"held-out error of the {n} heliostats meaningfully: they are kept as configured."]
     else:
         numbers = "; ".join(f"{name} = {v['value']:.4g} +- {v['sigma']:.2g}, where {agreeing(v)} of the "
-                            f"{len(v['alone'])} heliostats agree" for name, v in values.items())
+                            f"{len(v['alone'])} heliostats agree" for name, v in values.items()
+                            if "from" not in v)  # the range test's values: in its own sentence
         words = [f"Shared by the {n} heliostats fitted: {', '.join(chosen)}"
                  + (f" ({numbers})" if numbers else "")
                  + f": the plant's held-out error falls from {before:.4f} to {after:.4f}."]
-    rest = sorted(set(kept) - {c.split(":")[0] for c in chosen})
+    rest = sorted(set(kept) - changed)
     if chosen and rest:
         words.append(f"Kept as configured: {', '.join(rest)}.")
     words.append(f"Each heliostat's own effects ({OWN}, canting, slope error, surface) are left to its own fit and diagnosis, "
