@@ -2,7 +2,8 @@
 
 Per heliostat the pipeline runs five short-lived steps (import, geometry, train, evaluate,
 diagnose); each process starts by importing torch and helioflow (3-5 s), which for a plant of
-hundreds is a fifth of the work. With `plant.group_size: N` the rules in workflow/rules/batches.smk
+hundreds was most of the 22 % of job time outside the fits (measured on a 30-heliostat plant,
+docs/benchmarks.md). With `plant.group_size: N` the rules in workflow/rules/batches.smk
 run each step for N heliostats of a plant entry in one process (`helioflow batch`), writing every
 heliostat's outputs and log where the per-heliostat rules write them. A group's job runs on one
 torch thread, so that snakemake's -j runs groups side by side (on these small fits two one-thread

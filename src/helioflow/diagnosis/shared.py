@@ -190,12 +190,13 @@ class RangeTest:
         x = (np.asarray(ranges_m, float) * 1e-3 / pixel_m) ** 2  # px^2 per mrad^2
         design = np.stack([np.ones_like(x), x], 1) / sy[:, None]
         kept = np.asarray(blur.kept, bool)
+        line = lambda kept: np.linalg.lstsq(design[kept], y[kept] / sy[kept], rcond=None)[0]
         for _ in range(len(b)):
-            coef = np.linalg.lstsq(design[kept], y[kept] / sy[kept], rcond=None)[0]
-            now = y - design @ coef * sy <= CLIP * sy
+            now = y - design @ line(kept) * sy <= CLIP * sy
             if (now == kept).all() or now.sum() < 3:
                 break
             kept = now
+        coef = line(kept)  # the line of the kept set (also when the clipping ran out of rounds)
         cov = np.linalg.inv(design[kept].T @ design[kept])
         chi2 = float((((y[kept] - design[kept] @ coef * sy[kept]) / sy[kept]) ** 2).sum() / max(kept.sum() - 2, 1))
         cov *= max(chi2, 1.0)
