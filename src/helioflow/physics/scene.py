@@ -18,7 +18,7 @@ from helioflow.physics.effects import FIT, TENSOR_EFFECTS, resolve
 from helioflow.physics.heliostat import Heliostat
 from helioflow.physics.linearised import LinearisedTrace, linearise
 from helioflow.physics.raytrace import trace
-from helioflow.physics.target import Target
+from helioflow.physics.target import CAMERA_PIXEL_VARIANCE, TENT_VARIANCE, Target
 
 
 @dataclass(frozen=True)
@@ -160,14 +160,16 @@ def dataset_scene(heliostat: Heliostat, attrs: dict, image_shape: tuple[int, int
     `cells_per_side`: coarser cells than the measurements' leave a lattice ripple in the spot, and
     a fit then widens the slope error to cover it. A sharp model (point sun, no slope error: no
     kernel) is traced with bilinear rays instead (Scene.simulate): the dataset's own when predicting.
+    The target averages over pixels as the dataset's images do (`images_pixel_variance`).
     """
     device = heliostat.facet_size.device
     aim = attrs.get("aim_point_m")
+    trace_settings = attrs.get("trace") or {}
     target = Target(torch.tensor(attrs["target_center_m"], dtype=torch.float32, device=device),
                     torch.tensor(attrs["target_normal"], dtype=torch.float32, device=device),
                     float(attrs["target_size_m"][0]), float(attrs["target_size_m"][1]), tuple(image_shape),
-                    None if aim is None else torch.tensor(aim, dtype=torch.float32, device=device))
-    trace_settings = attrs.get("trace") or {}
+                    None if aim is None else torch.tensor(aim, dtype=torch.float32, device=device),
+                    images_pixel_variance(trace_settings))
     dni = float(attrs["dni_w_m2"])
     known = attrs.get("neighbours_enu_m")
     neighbours = None if known is None else torch.tensor(known, dtype=torch.float32, device=device).reshape(-1, 3)
@@ -177,6 +179,16 @@ def dataset_scene(heliostat: Heliostat, attrs: dict, image_shape: tuple[int, int
     cells = max(cells_per_side, int(trace_settings.get("cells_per_side") or cells_per_side))
     rays = fit_rays if fitting else int(trace_settings.get("rays") or fit_rays)
     return Scene(heliostat, target, dni, rays=rays, cells_per_side=cells, neighbours=neighbours)
+
+
+def images_pixel_variance(trace_settings: dict) -> float | None:
+    """The pixel filter (pixel^2 per axis, see Target.pixel_variance) of a dataset's images, from its
+    trace settings: a camera's pixel average for images helioflow did not trace (imported: no
+    settings), the tent of the bilinear Monte Carlo, None for the kernel splat's own images."""
+    splat = trace_settings.get("splat")
+    if splat is None:
+        return CAMERA_PIXEL_VARIANCE
+    return TENT_VARIANCE if splat == "bilinear" else None
 
 
 def normalised(images: Tensor, loss: str, scale: float, lost: Tensor | None = None) -> Tensor:

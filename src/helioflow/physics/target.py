@@ -9,6 +9,9 @@ from torch import Tensor
 
 from helioflow.physics.geometry import normalize, plane_axes
 
+CAMERA_PIXEL_VARIANCE = 1 / 12  # pixel^2 per axis: a camera pixel integrates the flux over its square (a box)
+TENT_VARIANCE = 1 / 6  # pixel^2 per axis: a bilinear deposit, averaged over where hits fall in a pixel
+
 
 @dataclass(frozen=True)
 class Target:
@@ -22,6 +25,10 @@ class Target:
             as seen from the field (see geometry.plane_axes).
         aim: (3,) ENU point the heliostats aim at (m), when it is not the centre (PAINT: the
             tower file's `center` entry, off the middle of the target's corners); None = center.
+        pixel_variance: variance (pixel^2 per axis) of the filter by which the images average the
+            flux over pixels: CAMERA_PIXEL_VARIANCE for a camera (each pixel integrates its square),
+            TENT_VARIANCE for images helioflow's bilinear Monte Carlo traced; None = whatever the
+            tracer's splat gives (images of the kernel splat itself, receivers' flux maps).
     """
 
     center: Tensor
@@ -30,6 +37,7 @@ class Target:
     height: float
     resolution: tuple[int, int] = (64, 64)
     aim: Tensor | None = None
+    pixel_variance: float | None = None
 
     @property
     def aim_point(self) -> Tensor:
