@@ -866,7 +866,7 @@ def plant_table_path(config: dict) -> list[str]:
 def plant_table_spec(config: dict) -> dict:
     """Parameters and inputs of rule `plant_table` (scoring.plant.write_plant_table): per plant
     heliostat its dataset, the physics model config plant.model names (which must be among the
-    networks) and its diagnosis."""
+    networks), its diagnosis and its plant fit (shared_of; "" without one)."""
     settings = {"model": "drt", "pointing_limit_mrad": 1.0, **(config.get("plant") or {})}
     if not plant_table_path(config):
         return {"pointing_limit_mrad": settings["pointing_limit_mrad"], "heliostats": []}
@@ -877,7 +877,8 @@ def plant_table_spec(config: dict) -> dict:
     return {"pointing_limit_mrad": settings["pointing_limit_mrad"],
             "heliostats": [{"plant": plant, "heliostat": plant_heliostat(config, d), "dataset": d,
                             "dataset_path": f"{r}/datasets/{d}.h5", "model_path": f"{r}/models/{d}/{settings['model']}.pt",
-                            "diagnosis_path": f"{r}/diagnosis/{d}.json"}
+                            "diagnosis_path": f"{r}/diagnosis/{d}.json",
+                            "shared_path": (shared_of(config, d) or {}).get("path", "")}
                            for plant, members in plant_groups(config).items() for d in members]}
 
 
@@ -1016,7 +1017,9 @@ def plant_flux_inputs(config: dict, plant: str) -> list[str]:
 
 def plant_table_inputs(config: dict) -> list[str]:
     """Files rule `plant_table` reads (plant_table_spec's paths)."""
-    return [h[k] for h in plant_table_spec(config)["heliostats"] for k in ("dataset_path", "model_path", "diagnosis_path")]
+    heliostats = plant_table_spec(config)["heliostats"]
+    return ([h[k] for h in heliostats for k in ("dataset_path", "model_path", "diagnosis_path")]
+            + sorted({h["shared_path"] for h in heliostats} - {""}))
 
 
 def expand_config(config: dict) -> dict:

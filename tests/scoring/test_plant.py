@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from helioflow.physics.heliostat import ideal_heliostat
-from helioflow.scoring.plant import pointing_error
+from helioflow.scoring.plant import is_off, pointing_error, unnamed_widening
 from helioflow.scoring.recovery import pointing_angles_mrad
 
 SUNS_AZ = np.array([-60.0, -20.0, 10.0, 45.0, 70.0])
@@ -81,3 +81,22 @@ def test_the_surface_rms_is_that_of_the_heights_the_control_points_span():
                                  heights=True)
     assert value == pytest.approx(float(surface_heights(heights).pow(2).mean().sqrt())) and 0 < value < 0.5
     assert sigma == pytest.approx(0.0, abs=1e-12)
+
+
+def test_a_heliostat_named_only_its_kinematics_but_widened_beyond_the_plants_envelope_is_flagged():
+    """A heliostat whose own camera blur (the plant fit, its kinematics and the blur free) lies beyond
+    WIDENED of its sigma above the lower envelope of the plant's values, and whose diagnosis named only
+    its kinematics, hides a widening of its own that the shared level took: flagged, and off."""
+    blur = {"value": 1.611, "sigma": 0.084, "envelope": 1.53,
+            "alone": {"P012": {"value": 1.651, "sigma": 0.05, "kept": True},
+                      "P005": {"value": 1.537, "sigma": 0.04, "kept": True}}}
+    shared = {"shared": [{"effect": "camera", "values": {"camera.blur_px": blur}}, {"effect": "sunshape", "values": {}}]}
+    flag = unnamed_widening("P012", ["tracking"], shared)
+    assert flag == ("own widening unnamed (camera.blur_px 1.651 +- 0.05 alone, 2.4 sigma above the plant's "
+                    "envelope 1.53)") and is_off(flag)
+    assert unnamed_widening("P005", ["tracking"], shared) is None  # 0.2 sigma: as clean as the plant's
+    assert unnamed_widening("P012", ["tracking", "canting"], shared) is None  # its diagnosis named its widening
+    assert unnamed_widening("P099", ["tracking"], shared) is None  # not among the heliostats the plant fit took
+    assert unnamed_widening("P012", ["tracking"], None) is None  # no plant fit
+    del blur["envelope"]  # a value the range test set (diagnosis.shared): the line's, without an envelope
+    assert unnamed_widening("P012", ["tracking"], shared) is None

@@ -7,10 +7,12 @@ a slope error, a canting or a tracking error is each heliostat's own. The plant 
 
 1. It takes up to `heliostats` of a plant's heliostats, evenly across the plant's list (a plant of
    thousands shares one sun and one camera: a few dozen heliostats determine them as well as all).
-2. Each heliostat keeps its own rigid effects free (`OWN`: tracking and canting), fitted on its
-   training images with the diagnosis' shape loss. Not its slope error: on one target a slope error
-   and a camera blur (or a wider sun) widen the spot alike, and a slope error free on every
-   heliostat could take up any share of a shared widening. Widening common to the heliostats is
+2. Each heliostat keeps its kinematics free (`OWN`: tracking), fitted on its training images with
+   the diagnosis' shape loss. Not its slope error: on one target a slope error and a camera blur (or
+   a wider sun) widen the spot alike, and a slope error free on every heliostat could take up any
+   share of a shared widening. Not its canting either: freed, it takes a share of the blur on every
+   heliostat (each one's sigma of the blur doubles to quadruples) and the level rises, as measured
+   on both 30-heliostat plants (docs/results.md). Widening common to the heliostats is
    the shared effects'; what one heliostat has beyond it is its own, for its own diagnosis.
 3. Every change to a shared effect the diagnosis would try (the camera added, the sun's width
    freed, the sun switched to another profile: diagnosis/candidates.py) is fitted on each
@@ -32,12 +34,21 @@ a slope error, a canting or a tracking error is each heliostat's own. The plant 
    misplaced flux fraction on their held-out images) meaningfully (diagnose.is_meaningful); the
    best one, then the best with one more change of another shared effect, as long as each step
    counts.
-6. Each shared value carries its sigma: that of the kept heliostats' inverse-variance mean, times
-   the square root of their chi^2 per degree of freedom where it exceeds 1 (they disagree beyond
-   their own sigma), or, where larger, the spread of the level over the heliostats resampled (a
-   bootstrap: which heliostats carry a widening of their own moves it more than their noise).
-   Beside it, what each heliostat alone makes of it (its own fit with the value free: the
-   confounded answer one heliostat gets) and whether the level kept it.
+6. Each shared value carries its sigma, from two sources added in quadrature. Statistical: that of
+   the kept heliostats' inverse-variance mean, times the square root of their chi^2 per degree of
+   freedom where it exceeds 1 (they disagree beyond their own sigma), or, where larger, the spread of
+   the level over the heliostats resampled (a bootstrap: which heliostats carry a widening of their
+   own moves it more than their noise). Systematic: the clipping assumes that the heliostats
+   without a widening of their own stand apart from those with one; where the widenings run down
+   to zero in a continuum (small cantings, weak slope errors) the least widened are kept and lift
+   the level. The lower envelope (`lower_envelope`: the same values read as a continuum of own
+   widenings from zero) bounds it from the other side; their difference is the level's systematic
+   sigma (on two independent 30-heliostat plants 0.08 px, where the statistical sigma said
+   0.02-0.04 and the level lay 5 sigma from the truth: docs/results.md). Beside it, what each
+   heliostat alone makes of it (its own fit with the value free: the confounded answer one
+   heliostat gets) and whether the level kept it. A heliostat whose own value lies well above the
+   envelope and whose diagnosis named no widening of its own may hide one the level took
+   (scoring/plant.py flags it).
 
 7. The sun against the camera, over the slant ranges (`RangeTest`). Levelled heliostat by heliostat,
    a sun told too narrow shows as a wider camera blur: each heliostat alone cannot tell the two
@@ -65,6 +76,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from scipy import optimize, stats
 
 from helioflow.data.hdf5 import read_dataset
 from helioflow.data.splits import evenly
@@ -128,19 +140,26 @@ class Level:
     """The level a shared width's per-heliostat values agree on from below (module docstring, 4 and 6)."""
 
     value: float
-    sigma: float
+    sigma: float  # statistical and systematic, in quadrature
+    statistical: float
+    envelope: float  # the values' lower envelope (`lower_envelope`): |value - envelope| is the systematic sigma
     chi2_per_dof: float  # of the kept heliostats' values about it
     values: list[float]  # each heliostat's own value ...
     sigmas: list[float]  # ... its marginal sigma (nan or 0: not determined, no weight) ...
     kept: list[bool]  # ... and whether the level kept it (False: a widening of its own)
 
+    @property
+    def systematic(self) -> float:
+        return abs(self.value - self.envelope)
+
     @classmethod
     def of(cls, values: list[float], sigmas: list[float]) -> Level:
         """The level of `values` (each heliostat's own, with its marginal `sigmas`; nan or 0: not
-        determined, given the median sigma) and its sigma: the larger of the kept heliostats'
-        inverse-variance sigma (times the root of their chi^2 per degree of freedom where it exceeds 1)
-        and the spread of the level over the heliostats resampled (BOOTSTRAP draws): which heliostats
-        happen to carry a widening of their own moves the level more than their noise does."""
+        determined, given the median sigma) and its sigma: statistical, the larger of the kept
+        heliostats' inverse-variance sigma (times the root of their chi^2 per degree of freedom where it
+        exceeds 1) and the spread of the level over the heliostats resampled (BOOTSTRAP draws: which
+        heliostats happen to carry a widening of their own moves the level more than their noise
+        does), and systematic, its distance to the values' lower envelope."""
         v = np.asarray(values, float)
         s = np.asarray(sigmas, float)
         usable = np.isfinite(s) & (s > 0)
@@ -150,8 +169,32 @@ class Level:
         sigma = float((1.0 / s[kept] ** 2).sum() ** -0.5 * math.sqrt(max(chi2, 1.0)))
         draws = np.random.default_rng(0).integers(0, len(v), (BOOTSTRAP, len(v)))
         resampled = [clipped_level(v[d], s[d])[0] for d in draws]
-        return cls(level, max(sigma, float(np.std(resampled))), chi2, v.tolist(), np.asarray(sigmas, float).tolist(),
-                   kept.tolist())
+        statistical = max(sigma, float(np.std(resampled)))
+        envelope = lower_envelope(v, s)
+        return cls(level, math.hypot(statistical, level - envelope), statistical, envelope, chi2, v.tolist(),
+                   np.asarray(sigmas, float).tolist(), kept.tolist())
+
+
+def lower_envelope(v: np.ndarray, s: np.ndarray) -> float:
+    """The shared width under own widenings that run down to zero in a continuum (module docstring,
+    6), from each heliostat's value `v` (n,) and sigma `s` (n,), widths in px or mrad: the
+    maximum-likelihood b of v_i^2 = b^2 + w_i + e_i, variances adding, with e_i ~ N(0, (2 v_i s_i)^2)
+    the heliostat's noise and w_i >= 0 its own widening, 0 with probability pi, else exponential of
+    mean tau (so that v_i^2 is a Gaussian or an exponentially modified Gaussian about b^2,
+    scipy.stats.exponnorm). (b, pi, tau) by Nelder-Mead from three starts of b^2 (the mean of the
+    lowest fifth of the v_i^2, their least, their median)."""
+    y, sy = v ** 2, np.maximum(2.0 * np.abs(v) * s, 1e-9)
+
+    def nll(p: np.ndarray) -> float:
+        b2, clean, tau = p[0], 1.0 / (1.0 + math.exp(-p[1])), math.exp(p[2])
+        density = clean * stats.norm.pdf(y, b2, sy) + (1.0 - clean) * stats.exponnorm.pdf(y, tau / sy, b2, sy)
+        return float(-np.log(np.maximum(density, 1e-300)).sum())
+
+    low = float(np.sort(y)[:max(3, len(y) // 5)].mean())
+    starts = (low, float(y.min()), float(np.median(y)))
+    fits = [optimize.minimize(nll, [b2, 0.0, math.log(max(float(np.median(y)) - b2, 1e-3))], method="Nelder-Mead",
+                              options={"xatol": 1e-6, "fatol": 1e-8, "maxiter": 4000}) for b2 in starts]
+    return math.sqrt(max(float(min(fits, key=lambda f: f.fun).x[0]), 0.0))
 
 
 def clipped_level(v: np.ndarray, s: np.ndarray) -> tuple[float, np.ndarray]:
@@ -316,6 +359,8 @@ class PlantFit:
         out = {}
         for name, level in self.levels[key].items():
             out[name] = {"value": self.joints[key].shared[name], "sigma": round(level.sigma, 5),
+                         "sigma_statistical": round(level.statistical, 5),
+                         "sigma_systematic": round(level.systematic, 5), "envelope": round(level.envelope, 4),
                          "alone": {m.heliostat: {"value": round(v, 4), "sigma": round(s, 5), "kept": kept}
                                    for m, v, s, kept in zip(self.members, level.values, level.sigmas, level.kept)},
                          "kept_chi2_per_dof": round(level.chi2_per_dof, 3)}
@@ -402,8 +447,9 @@ def fit_plant(plant: str, members: list[Member], effects: dict, settings: dict, 
         if renamed.error <= final.error:
             final = renamed
             changed.add("sunshape")
-            values[BLUR] = {**values[BLUR], "value": renamed.shared[BLUR], "sigma": round(test.blur_sigma_px, 5),
-                            "from": "the range test"}
+            levelled = ("envelope", "sigma_statistical", "sigma_systematic")  # the level's, not the line's
+            values[BLUR] = {**{k: v for k, v in values[BLUR].items() if k not in levelled},
+                            "value": renamed.shared[BLUR], "sigma": round(test.blur_sigma_px, 5), "from": "the range test"}
             values[SUN_WIDTH] = {"value": renamed.shared[SUN_WIDTH], "sigma": round(width_sigma, 5),
                                  "from": "the range test"}
         else:
@@ -469,8 +515,8 @@ def plant_verdict(n: int, before: float, after: float, chosen: list[str], change
         words = [f"No change to the shared effects ({', '.join(sorted(kept)) or 'none in the model'}) cuts the "
                  f"held-out error of the {n} heliostats meaningfully: they are kept as configured."]
     else:
-        numbers = "; ".join(f"{name} = {v['value']:.4g} +- {v['sigma']:.2g}, where {agreeing(v)} of the "
-                            f"{len(v['alone'])} heliostats agree" for name, v in values.items()
+        numbers = "; ".join(f"{name} = {v['value']:.4g} +- {v['sigma']:.2g}{sources(v)}, where {agreeing(v)} of "
+                            f"the {len(v['alone'])} heliostats agree" for name, v in values.items()
                             if "from" not in v)  # the range test's values: in its own sentence
         words = [f"Shared by the {n} heliostats fitted: {', '.join(chosen)}"
                  + (f" ({numbers})" if numbers else "")
@@ -481,6 +527,14 @@ def plant_verdict(n: int, before: float, after: float, chosen: list[str], change
     words.append(f"Each heliostat's own effects ({OWN}, canting, slope error, surface) are left to its own fit and diagnosis, "
                  "which take the shared effects at these values.")
     return " ".join(words)
+
+
+def sources(value: dict) -> str:
+    """Where a shared value's sigma (`PlantFit.sigma`'s entry) comes from, in words (module docstring, 6)."""
+    if "envelope" not in value:
+        return ""
+    return (f" ({value['sigma_statistical']:.2g} from the heliostats' scatter, {value['sigma_systematic']:.2g} from "
+            f"their own widenings: the lower envelope of their values is {value['envelope']:.4g})")
 
 
 def agreeing(value: dict) -> int:

@@ -20,9 +20,12 @@ Columns of results/<experiment>/plant/heliostats.csv:
   entries from the fit's covariance; empty where the fit has none);
 - flags: ';'-separated: `pointing > <limit> mrad` (config plant.pointing_limit_mrad),
   `tracking not determined`, `canting not determined`, `surface not determined` (entries the fit
-  cannot pin down, models/uncertainty.py), `residual <k> x noise` (what the diagnosis could not explain).
-  The first and the last say the heliostat is off (`is_off`); "not determined" says how sure the
-  fit is.
+  cannot pin down, models/uncertainty.py), `residual <k> x noise` (what the diagnosis could not explain),
+  `own widening unnamed (...)` (`unnamed_widening`: its diagnosis named nothing but its kinematics,
+  while its own value of a shared width in the plant fit lies beyond WIDENED of its sigma above the
+  plant's lower envelope: a widening of its own, a canting or slope error, that the shared level may
+  have taken). `pointing`, `residual` and `own widening` say the heliostat is off (`is_off`); "not
+  determined" says how sure the fit is.
 """
 
 from __future__ import annotations
@@ -48,7 +51,9 @@ COLUMNS = ("plant", "heliostat", "dataset", "east_m", "north_m", "images", "held
            "heldout_error_calibrated", "named_effects", "pointing_error_mrad", "pointing_error_sigma_mrad",
            "canting_rms_mrad", "canting_rms_sigma_mrad", "surface_rms_mm", "surface_rms_sigma_mm", "flags")
 DRAWS = 512  # tracking draws from the covariance for the pointing error's sigma
-OFF = ("pointing >", "residual ")  # the flags (heliostat_row) that say a heliostat is off, not how sure its fit is
+OFF = ("pointing >", "residual ", "own widening")  # the flags (heliostat_row) that say a heliostat is off, not how sure
+#                                                  its fit is
+WIDENED = 2.0  # sigma of its own value above the plant's lower envelope: a heliostat's own widening (unnamed_widening)
 
 
 def is_off(flags: str) -> bool:
@@ -98,10 +103,31 @@ def tensor_rms(effective: torch.Tensor, key: str, uncertainty, seed: int = 0, he
     return value, spread, any(uncertainty.names[k] in uncertainty.undetermined for k in at)
 
 
+def unnamed_widening(heliostat: str, named: list[str], shared: dict | None) -> str | None:
+    """The flag `own widening unnamed (...)` (module docstring) of a heliostat whose diagnosis `named`
+    only its kinematics (or nothing), from its plant's entry of plant/shared.json (`shared`; None: no
+    plant fit): the first shared width whose value this heliostat alone (diagnosis.shared, its fit
+    with the width free) lies beyond WIDENED of its sigma above the lower envelope of all
+    heliostats' values; None when none does, or the heliostat was not among those the plant fit took."""
+    if shared is None or set(named) - {"tracking"}:
+        return None
+    for effect in shared.get("shared", []):
+        for name, value in effect.get("values", {}).items():
+            alone = value.get("alone", {}).get(heliostat)
+            if "envelope" not in value or alone is None or not alone["sigma"] > 0:
+                continue
+            z = (alone["value"] - value["envelope"]) / alone["sigma"]
+            if z > WIDENED:
+                return (f"own widening unnamed ({name} {alone['value']:.4g} +- {alone['sigma']:.2g} alone, {z:.1f} sigma "
+                        f"above the plant's envelope {value['envelope']:.4g})")
+    return None
+
+
 def heliostat_row(plant: str, heliostat: str, dataset: str, dataset_path: str | os.PathLike,
-                  model_path: str | os.PathLike, diagnosis_path: str | os.PathLike, pointing_limit_mrad: float) -> dict:
+                  model_path: str | os.PathLike, diagnosis_path: str | os.PathLike, pointing_limit_mrad: float,
+                  shared: dict | None = None) -> dict:
     """One row of the plant table (module docstring) from a heliostat's dataset, physics model and
-    diagnosis."""
+    diagnosis, and its plant's entry of plant/shared.json (`shared`; None: no plant fit)."""
     ds = read_dataset(dataset_path)
     model, info = load_model(model_path)
     fitted = getattr(model, "fitted", None)
@@ -146,16 +172,28 @@ def heliostat_row(plant: str, heliostat: str, dataset: str, dataset_path: str | 
                 flags.append(f"{key} not determined")
     if not diagnosis["remaining"]["explained"]:  # the diagnosis' own verdict against its noise floor
         flags.append(f"residual {float(diagnosis['remaining']['over_noise']):.1f} x noise")
+    widened = unnamed_widening(heliostat, row["named_effects"].split(";") if row["named_effects"] else [], shared)
+    if widened:
+        flags.append(widened)
     row["flags"] = ";".join(flags)
     return row
 
 
 def write_plant_table(spec: dict, output_csv: str | os.PathLike) -> list[dict]:
     """The plant table of `spec` ({"pointing_limit_mrad": float, "heliostats": [{plant, heliostat, dataset,
-    and the paths dataset_path, model_path, diagnosis_path}]}) written to `output_csv`; returns its rows
-    (its plan figure: scoring.plant_figure)."""
+    and the paths dataset_path, model_path, diagnosis_path, shared_path (plant/shared.json; "" without a
+    plant fit)}]}) written to `output_csv`; returns its rows (its plan figure: scoring.plant_figure)."""
+    fits: dict[str, dict] = {}
+    for path in {h.get("shared_path") for h in spec["heliostats"]} - {None, ""}:
+        try:
+            with open(path) as f:
+                fits[path] = json.load(f)
+        except (OSError, ValueError) as exc:
+            raise DataError(f"{path}: cannot read the plant fit: {exc}") from None
     rows = [heliostat_row(h["plant"], h["heliostat"], h["dataset"], h["dataset_path"], h["model_path"],
-                          h["diagnosis_path"], spec["pointing_limit_mrad"]) for h in spec["heliostats"]]
+                          h["diagnosis_path"], spec["pointing_limit_mrad"],
+                          fits[h["shared_path"]].get(h["plant"]) if h.get("shared_path") else None)
+            for h in spec["heliostats"]]
     text = io.StringIO()
     writer = csv.DictWriter(text, fieldnames=COLUMNS, lineterminator="\n")
     writer.writeheader()

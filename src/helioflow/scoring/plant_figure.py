@@ -2,7 +2,8 @@
 (east, north; m, the tower at the origin), coloured by its pointing error (mrad, one colour scale),
 its marker telling the effects its diagnosis named (the MARKED most common sets each a shape of
 their own, the rest one shape), a red ring around those that are off (scoring.plant.is_off: pointing
-beyond the limit, or a residual the diagnosis could not explain). Readable for hundreds of
+beyond the limit, a residual the diagnosis could not explain, or a widening of its own it did not
+name). Readable for hundreds of
 heliostats: one marker each, no labels but the legend's; the heliostats without a pointing error
 (a model without kinematics) grey."""
 
