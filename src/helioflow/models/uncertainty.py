@@ -100,6 +100,12 @@ class FitUncertainty:
         undetermined: names reported "not determined" (module docstring).
         noise: the white pixel noise read in the fit's residual (the loss' units), per level of
             the compared prediction (what `planning` weighs new images with).
+        statistical: (P, P) the covariance without what facets the fit has not found do
+            (`_systematic`): the noise's, misfit-inflated, and the step the fit stopped short. What a
+            test of whether an effect is there at all takes (diagnosis: the Wald test): `_systematic`
+            gives a not-found facet's entries the variance of the tensor's own typical entry, so that
+            its departure from zero is about its own size by construction, whatever the images say.
+            Not kept in model files (None when loaded).
     """
 
     names: list[str]
@@ -112,6 +118,7 @@ class FitUncertainty:
     facet_structure: np.ndarray | None = None
     undetermined: list[str] = field(default_factory=list)
     noise: NoiseModel | None = None
+    statistical: np.ndarray | None = None
 
     @property
     def sigma(self) -> np.ndarray:
@@ -392,12 +399,11 @@ def fit_uncertainty(state: _State, fitted: list[tuple[str, str]], masks: dict[st
     off = set() if facets is None else {int(f) for f in np.flatnonzero(facets > STRUCTURED)}
     undetermined = [p.name for p in params if (p.kind == "spread" and (overall > SPREADS_STRUCTURED or at_bound(p)))
                     or (p.kind == "tensor" and p.key[0] != "tracking" and p.key[1][0] in off)]
-    free_cov = free_cov * max(1.0, misfit) + _systematic(h.numpy(), state, masks, off)
     newton = h_plus @ (jacobian.T @ residual.flatten().float()).double().numpy()  # what the fit has left to go
-    free_cov = free_cov + np.outer(newton, newton)
-    covariance = entry_of @ free_cov @ entry_of.T
+    statistical = free_cov * max(1.0, misfit) + np.outer(newton, newton)
+    covariance = entry_of @ (statistical + _systematic(h.numpy(), state, masks, off)) @ entry_of.T
     return FitUncertainty(names, units, values, covariance, misfit, overall, float(variance.mean().sqrt()), facets,
-                          undetermined, noise)
+                          undetermined, noise, entry_of @ statistical @ entry_of.T)
 
 
 def compared_jacobian(state: _State, params: list[_Parameter],
