@@ -341,7 +341,8 @@ def test_the_plant_section_shows_the_plan_the_worst_heliostats_and_the_plants_fl
              "plant_flux": [str(tmp_path / "plant.json"), str(plan)]}
     text = _section(build_report(files, None, "t"), "The plant")
     assert '<td>heliostats</td><td class="num">12</td>' in text
-    assert '<td>off: pointing beyond the limit, a residual unexplained or an own widening unnamed</td><td class="num">2</td>' in text
+    off = "off: pointing beyond the limit, a residual unexplained or an own widening unnamed"
+    assert f'<td>{off}</td><td class="num">2</td>' in text
     worst = re.findall(r"<tr><td>(P\d+)</td>", text)
     assert worst[:3] == ["P011", "P010", "P009"]  # by pointing error, largest first
     assert "<td>0.310 ± 0.020</td><td>–</td>" in text

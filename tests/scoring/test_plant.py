@@ -90,7 +90,8 @@ def test_a_heliostat_named_only_its_kinematics_but_widened_beyond_the_plants_env
     blur = {"value": 1.611, "sigma": 0.084, "envelope": 1.53,
             "alone": {"P012": {"value": 1.651, "sigma": 0.05, "kept": True},
                       "P005": {"value": 1.537, "sigma": 0.04, "kept": True}}}
-    shared = {"shared": [{"effect": "camera", "values": {"camera.blur_px": blur}}, {"effect": "sunshape", "values": {}}]}
+    shared = {"shared": [{"effect": "camera", "values": {"camera.blur_px": blur}},
+                         {"effect": "sunshape", "values": {}}]}
     flag = unnamed_widening("P012", ["tracking"], shared)
     assert flag == ("own widening unnamed (camera.blur_px 1.651 +- 0.05 alone, 2.4 sigma above the plant's "
                     "envelope 1.53)") and is_off(flag)

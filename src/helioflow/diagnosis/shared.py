@@ -449,7 +449,8 @@ def fit_plant(plant: str, members: list[Member], effects: dict, settings: dict, 
             changed.add("sunshape")
             levelled = ("envelope", "sigma_statistical", "sigma_systematic")  # the level's, not the line's
             values[BLUR] = {**{k: v for k, v in values[BLUR].items() if k not in levelled},
-                            "value": renamed.shared[BLUR], "sigma": round(test.blur_sigma_px, 5), "from": "the range test"}
+                            "value": renamed.shared[BLUR], "sigma": round(test.blur_sigma_px, 5),
+                            "from": "the range test"}
             values[SUN_WIDTH] = {"value": renamed.shared[SUN_WIDTH], "sigma": round(width_sigma, 5),
                                  "from": "the range test"}
         else:

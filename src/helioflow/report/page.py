@@ -208,7 +208,8 @@ def _plant_section(files: dict[str, list[str]]) -> str:
             for effect in filter(None, r["named_effects"].split(";")):
                 named[effect] = named.get(effect, 0) + 1
         off = [r for r in records if is_off(r["flags"])]
-        summary = [["heliostats", len(records)], ["off: pointing beyond the limit, a residual unexplained or an own widening unnamed", len(off)],
+        summary = [["heliostats", len(records)],
+                   ["off: pointing beyond the limit, a residual unexplained or an own widening unnamed", len(off)],
                    *[[f"named: {effect}", count] for effect, count in sorted(named.items(), key=lambda kv: -kv[1])]]
         worst = sorted(records, key=lambda r: -(_number(r["pointing_error_mrad"]) or 0.0))[:PLANT_WORST]
         rows = [[r["heliostat"], r["images"], _shown(r["heldout_error_ideal"], 4),

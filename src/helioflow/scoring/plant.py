@@ -118,8 +118,8 @@ def unnamed_widening(heliostat: str, named: list[str], shared: dict | None) -> s
                 continue
             z = (alone["value"] - value["envelope"]) / alone["sigma"]
             if z > WIDENED:
-                return (f"own widening unnamed ({name} {alone['value']:.4g} +- {alone['sigma']:.2g} alone, {z:.1f} sigma "
-                        f"above the plant's envelope {value['envelope']:.4g})")
+                return (f"own widening unnamed ({name} {alone['value']:.4g} +- {alone['sigma']:.2g} alone, "
+                        f"{z:.1f} sigma above the plant's envelope {value['envelope']:.4g})")
     return None
 
 
