@@ -87,7 +87,7 @@ def test_a_heliostat_named_only_its_kinematics_but_widened_beyond_the_plants_env
     """A heliostat whose own camera blur (the plant fit, its kinematics and the blur free) lies beyond
     WIDENED of its sigma above the lower envelope of the plant's values, and whose diagnosis named only
     its kinematics, hides a widening of its own that the shared level took: flagged, and off."""
-    blur = {"value": 1.611, "sigma": 0.084, "envelope": 1.53,
+    blur = {"value": 1.53, "sigma": 0.084, "clipped": 1.611,
             "alone": {"P012": {"value": 1.651, "sigma": 0.05, "kept": True},
                       "P005": {"value": 1.537, "sigma": 0.04, "kept": True}}}
     shared = {"shared": [{"effect": "camera", "values": {"camera.blur_px": blur}},
@@ -99,5 +99,5 @@ def test_a_heliostat_named_only_its_kinematics_but_widened_beyond_the_plants_env
     assert unnamed_widening("P012", ["tracking", "canting"], shared) is None  # its diagnosis named its widening
     assert unnamed_widening("P099", ["tracking"], shared) is None  # not among the heliostats the plant fit took
     assert unnamed_widening("P012", ["tracking"], None) is None  # no plant fit
-    del blur["envelope"]  # a value the range test set (diagnosis.shared): the line's, without an envelope
+    del blur["clipped"]  # a value the range test set (diagnosis.shared): the line's, not a level
     assert unnamed_widening("P012", ["tracking"], shared) is None

@@ -23,32 +23,35 @@ a slope error, a canting or a tracking error is each heliostat's own. The plant 
    level the heliostats agree on from below (`Level`). A heliostat's own effects (a slope
    error, a bump, canting) only widen its spot (variances add), so each heliostat's own value is
    the shared one plus a share of its own, never less, plus its noise: its marginal sigma in its
-   fit with the value free (models/uncertainty.py). Starting from the median, heliostats more than
-   CLIP sigma above the inverse-variance mean of those kept are set aside (never those below), until
-   the kept set stops changing: the one-sided clipping with which astronomers take the sky's level
-   under stars that only add light. A median sits inside the widened ones where most heliostats
-   have an effect of their own (6-8 % high on the independent plants, 2.4-4.3 sigma) and leaves the
-   heliostats' own widening to the shared value (on a 6 x 30-image plant both slope errors went
-   unnamed with it, both were named with the level: docs/results.md).
+   fit with the value free (models/uncertainty.py). Small cantings and weak slope errors widen a
+   spot by any amount down to zero, so the heliostats without a widening of their own do not stand
+   apart from the least widened: the value is the values' lower envelope (`lower_envelope`), each
+   heliostat's squared value the shared one plus its own widening (none, or exponentially
+   distributed) plus its noise, fitted by maximum likelihood. A median sits inside the widened ones
+   where most heliostats have an effect of their own (6-8 % high on the independent plants, 2.4-4.3
+   sigma) and leaves the heliostats' own widening to the shared value (on a 6 x 30-image plant both
+   slope errors went unnamed with it). Beside it, the one-sided clipping with which astronomers take
+   the sky's level under stars that only add light (`clipped_level`): from the median, heliostats
+   more than CLIP sigma above the inverse-variance mean of those kept are set aside (never those
+   below), until the kept set stops changing. It says which heliostats carry a widening of their
+   own, but keeps the least widened and lies above the truth where the widenings run down to zero
+   (+0.07 and +0.11 px on the two 30-heliostat plants, where the envelope lay -0.01 and +0.03 px
+   from it; at the clipped level true slope errors fit low and the plants' diagnoses named 27 and 26
+   of 30 right, at the envelope 29 and 27: docs/results.md).
 5. A change is shared when it cuts the plant's held-out error (the mean over the heliostats of the
    misplaced flux fraction on their held-out images) meaningfully (diagnose.is_meaningful); the
    best one, then the best with one more change of another shared effect, as long as each step
    counts.
-6. Each shared value carries its sigma, from two sources added in quadrature. Statistical: that of
-   the kept heliostats' inverse-variance mean, times the square root of their chi^2 per degree of
-   freedom where it exceeds 1 (they disagree beyond their own sigma), or, where larger, the spread of
-   the level over the heliostats resampled (a bootstrap: which heliostats carry a widening of their
-   own moves it more than their noise). Systematic: the clipping assumes that the heliostats
-   without a widening of their own stand apart from those with one; where the widenings run down
-   to zero in a continuum (small cantings, weak slope errors) the least widened are kept and lift
-   the level. The lower envelope (`lower_envelope`: the same values read as a continuum of own
-   widenings from zero) bounds it from the other side; their difference is the level's systematic
-   sigma (on two independent 30-heliostat plants 0.08 px, where the statistical sigma said
-   0.02-0.04 and the level lay 5 sigma from the truth: docs/results.md). Beside it, what each
-   heliostat alone makes of it (its own fit with the value free: the confounded answer one
-   heliostat gets) and whether the level kept it. A heliostat whose own value lies well above the
-   envelope and whose diagnosis named no widening of its own may hide one the level took
-   (scoring/plant.py flags it).
+6. Each shared value carries its sigma, from two sources added in quadrature. Statistical: the
+   spread of the envelope over the heliostats resampled (a bootstrap: which heliostats carry a
+   widening of their own moves it more than their noise), or, where larger, that of the kept
+   heliostats' inverse-variance mean, times the square root of their chi^2 per degree of freedom
+   where it exceeds 1 (they disagree beyond their own sigma). Systematic: the envelope rests on a
+   model of the own widenings (none, or a continuum from zero), the clipping on another (apart from
+   none); their difference is the level's systematic sigma. Beside it, what each heliostat alone
+   makes of it (its own fit with the value free: the confounded answer one heliostat gets) and
+   whether the clipping kept it. A heliostat whose own value lies well above the level and whose
+   diagnosis named no widening of its own may hide one the level took (scoring/plant.py flags it).
 
 7. The sun against the camera, over the slant ranges (`RangeTest`). Levelled heliostat by heliostat,
    a sun told too narrow shows as a wider camera blur: each heliostat alone cannot tell the two
@@ -99,7 +102,7 @@ from helioflow.physics.scene import Scene, dataset_scene
 
 log = logging.getLogger(__name__)
 
-BOOTSTRAP = 200  # resamplings of the heliostats for the shared level's sigma
+BOOTSTRAP = 100  # resamplings of the heliostats for the shared level's sigma
 CLIP = 2.5  # a heliostat whose own value lies this many of its sigma above the shared level has a widening of its own
 OWN = "tracking"  # each heliostat's own effects during the plant fit (drt_effects, kinematics only)
 RANGE_SIGNIFICANCE = 3.0  # the sun's variance deficit this many of its sigma from 0: the sun's width is renamed
@@ -139,50 +142,51 @@ class Joint:
 class Level:
     """The level a shared width's per-heliostat values agree on from below (module docstring, 4 and 6)."""
 
-    value: float
+    value: float  # the values' lower envelope (`lower_envelope`)
     sigma: float  # statistical and systematic, in quadrature
     statistical: float
-    envelope: float  # the values' lower envelope (`lower_envelope`): |value - envelope| is the systematic sigma
-    chi2_per_dof: float  # of the kept heliostats' values about it
+    clipped: float  # the one-sided clipping's level (`clipped_level`): |value - clipped| is the systematic sigma
+    chi2_per_dof: float  # of the kept heliostats' values about the clipped level
     values: list[float]  # each heliostat's own value ...
     sigmas: list[float]  # ... its marginal sigma (nan or 0: not determined, no weight) ...
-    kept: list[bool]  # ... and whether the level kept it (False: a widening of its own)
+    kept: list[bool]  # ... and whether the clipping kept it (False: a widening of its own)
 
     @property
     def systematic(self) -> float:
-        return abs(self.value - self.envelope)
+        return abs(self.value - self.clipped)
 
     @classmethod
     def of(cls, values: list[float], sigmas: list[float]) -> Level:
         """The level of `values` (each heliostat's own, with its marginal `sigmas`; nan or 0: not
-        determined, given the median sigma) and its sigma: statistical, the larger of the kept
-        heliostats' inverse-variance sigma (times the root of their chi^2 per degree of freedom where it
-        exceeds 1) and the spread of the level over the heliostats resampled (BOOTSTRAP draws: which
-        heliostats happen to carry a widening of their own moves the level more than their noise
-        does), and systematic, its distance to the values' lower envelope."""
+        determined, given the median sigma): their lower envelope, and its sigma: statistical, the
+        larger of the kept heliostats' inverse-variance sigma (times the root of their chi^2 per degree
+        of freedom where it exceeds 1) and the spread of the envelope over the heliostats resampled
+        (BOOTSTRAP draws: which heliostats happen to carry a widening of their own moves it more than
+        their noise does), and systematic, its distance to the one-sided clipping's level."""
         v = np.asarray(values, float)
         s = np.asarray(sigmas, float)
         usable = np.isfinite(s) & (s > 0)
         s = np.where(usable, s, np.median(s[usable]) if usable.any() else 1.0)
-        level, kept = clipped_level(v, s)
-        chi2 = float((((v[kept] - level) / s[kept]) ** 2).sum() / max(kept.sum() - 1, 1))
+        clipped, kept = clipped_level(v, s)
+        chi2 = float((((v[kept] - clipped) / s[kept]) ** 2).sum() / max(kept.sum() - 1, 1))
         sigma = float((1.0 / s[kept] ** 2).sum() ** -0.5 * math.sqrt(max(chi2, 1.0)))
+        envelope, optimum = lower_envelope(v, s)
         draws = np.random.default_rng(0).integers(0, len(v), (BOOTSTRAP, len(v)))
-        resampled = [clipped_level(v[d], s[d])[0] for d in draws]
+        resampled = [lower_envelope(v[d], s[d], start=optimum)[0] for d in draws]
         statistical = max(sigma, float(np.std(resampled)))
-        envelope = lower_envelope(v, s)
-        return cls(level, math.hypot(statistical, level - envelope), statistical, envelope, chi2, v.tolist(),
+        return cls(envelope, math.hypot(statistical, clipped - envelope), statistical, clipped, chi2, v.tolist(),
                    np.asarray(sigmas, float).tolist(), kept.tolist())
 
 
-def lower_envelope(v: np.ndarray, s: np.ndarray) -> float:
+def lower_envelope(v: np.ndarray, s: np.ndarray, start: np.ndarray | None = None) -> tuple[float, np.ndarray]:
     """The shared width under own widenings that run down to zero in a continuum (module docstring,
-    6), from each heliostat's value `v` (n,) and sigma `s` (n,), widths in px or mrad: the
+    4), from each heliostat's value `v` (n,) and sigma `s` (n,), widths in px or mrad: the
     maximum-likelihood b of v_i^2 = b^2 + w_i + e_i, variances adding, with e_i ~ N(0, (2 v_i s_i)^2)
     the heliostat's noise and w_i >= 0 its own widening, 0 with probability pi, else exponential of
     mean tau (so that v_i^2 is a Gaussian or an exponentially modified Gaussian about b^2,
-    scipy.stats.exponnorm). (b, pi, tau) by Nelder-Mead from three starts of b^2 (the mean of the
-    lowest fifth of the v_i^2, their least, their median)."""
+    scipy.stats.exponnorm). (b^2, logit pi, log tau) by Nelder-Mead from `start` (3,), or else from three
+    starts of b^2 (the mean of the lowest fifth of the v_i^2, their least, their median)
+    -> (b, the optimum (3,), a start for resampled values)."""
     y, sy = v ** 2, np.maximum(2.0 * np.abs(v) * s, 1e-9)
 
     def nll(p: np.ndarray) -> float:
@@ -190,11 +194,15 @@ def lower_envelope(v: np.ndarray, s: np.ndarray) -> float:
         density = clean * stats.norm.pdf(y, b2, sy) + (1.0 - clean) * stats.exponnorm.pdf(y, tau / sy, b2, sy)
         return float(-np.log(np.maximum(density, 1e-300)).sum())
 
-    low = float(np.sort(y)[:max(3, len(y) // 5)].mean())
-    starts = (low, float(y.min()), float(np.median(y)))
-    fits = [optimize.minimize(nll, [b2, 0.0, math.log(max(float(np.median(y)) - b2, 1e-3))], method="Nelder-Mead",
-                              options={"xatol": 1e-6, "fatol": 1e-8, "maxiter": 4000}) for b2 in starts]
-    return math.sqrt(max(float(min(fits, key=lambda f: f.fun).x[0]), 0.0))
+    if start is None:
+        low = float(np.sort(y)[:max(3, len(y) // 5)].mean())
+        spread = lambda b2: math.log(max(float(np.median(y)) - b2, 1e-3))
+        starts = [np.array([b2, 0.0, spread(b2)]) for b2 in (low, float(y.min()), float(np.median(y)))]
+    else:
+        starts = [start]
+    best = min((optimize.minimize(nll, p, method="Nelder-Mead", options={"xatol": 1e-6, "fatol": 1e-8, "maxiter": 4000})
+                for p in starts), key=lambda f: f.fun)
+    return math.sqrt(max(float(best.x[0]), 0.0)), best.x
 
 
 def clipped_level(v: np.ndarray, s: np.ndarray) -> tuple[float, np.ndarray]:
@@ -360,7 +368,7 @@ class PlantFit:
         for name, level in self.levels[key].items():
             out[name] = {"value": self.joints[key].shared[name], "sigma": round(level.sigma, 5),
                          "sigma_statistical": round(level.statistical, 5),
-                         "sigma_systematic": round(level.systematic, 5), "envelope": round(level.envelope, 4),
+                         "sigma_systematic": round(level.systematic, 5), "clipped": round(level.clipped, 4),
                          "alone": {m.heliostat: {"value": round(v, 4), "sigma": round(s, 5), "kept": kept}
                                    for m, v, s, kept in zip(self.members, level.values, level.sigmas, level.kept)},
                          "kept_chi2_per_dof": round(level.chi2_per_dof, 3)}
@@ -447,7 +455,7 @@ def fit_plant(plant: str, members: list[Member], effects: dict, settings: dict, 
         if renamed.error <= final.error:
             final = renamed
             changed.add("sunshape")
-            levelled = ("envelope", "sigma_statistical", "sigma_systematic")  # the level's, not the line's
+            levelled = ("clipped", "sigma_statistical", "sigma_systematic")  # the level's, not the line's
             values[BLUR] = {**{k: v for k, v in values[BLUR].items() if k not in levelled},
                             "value": renamed.shared[BLUR], "sigma": round(test.blur_sigma_px, 5),
                             "from": "the range test"}
@@ -516,8 +524,7 @@ def plant_verdict(n: int, before: float, after: float, chosen: list[str], change
         words = [f"No change to the shared effects ({', '.join(sorted(kept)) or 'none in the model'}) cuts the "
                  f"held-out error of the {n} heliostats meaningfully: they are kept as configured."]
     else:
-        numbers = "; ".join(f"{name} = {v['value']:.4g} +- {v['sigma']:.2g}{sources(v)}, where {agreeing(v)} of "
-                            f"the {len(v['alone'])} heliostats agree" for name, v in values.items()
+        numbers = "; ".join(f"{name} = {v['value']:.4g} +- {v['sigma']:.2g}{sources(v)}" for name, v in values.items()
                             if "from" not in v)  # the range test's values: in its own sentence
         words = [f"Shared by the {n} heliostats fitted: {', '.join(chosen)}"
                  + (f" ({numbers})" if numbers else "")
@@ -531,17 +538,15 @@ def plant_verdict(n: int, before: float, after: float, chosen: list[str], change
 
 
 def sources(value: dict) -> str:
-    """Where a shared value's sigma (`PlantFit.sigma`'s entry) comes from, in words (module docstring, 6)."""
-    if "envelope" not in value:
+    """What a shared value (`PlantFit.sigma`'s entry) is and where its sigma comes from, in words
+    (module docstring, 4 and 6): the fewer heliostats the clipping kept, the more the clipped level
+    rests on a few heliostats' luck of carrying no widening of their own."""
+    if "clipped" not in value:
         return ""
-    return (f" ({value['sigma_statistical']:.2g} from the heliostats' scatter, {value['sigma_systematic']:.2g} from "
-            f"their own widenings: the lower envelope of their values is {value['envelope']:.4g})")
-
-
-def agreeing(value: dict) -> int:
-    """How many heliostats the level of a shared value (`PlantFit.sigma`'s entry) kept: the fewer, the
-    more the value rests on a few heliostats' luck of carrying no widening of their own."""
-    return sum(a["kept"] for a in value["alone"].values())
+    kept = sum(a["kept"] for a in value["alone"].values())
+    return (f" (the lower envelope of the {len(value['alone'])} heliostats' values; {value['sigma_statistical']:.2g} "
+            f"from their scatter, {value['sigma_systematic']:.2g} from their own widenings: the level where the "
+            f"{kept} least widened agree is {value['clipped']:.4g})")
 
 
 def with_plant(effects: dict, shared: dict | None) -> dict:

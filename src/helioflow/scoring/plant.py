@@ -107,19 +107,19 @@ def unnamed_widening(heliostat: str, named: list[str], shared: dict | None) -> s
     """The flag `own widening unnamed (...)` (module docstring) of a heliostat whose diagnosis `named`
     only its kinematics (or nothing), from its plant's entry of plant/shared.json (`shared`; None: no
     plant fit): the first shared width whose value this heliostat alone (diagnosis.shared, its fit
-    with the width free) lies beyond WIDENED of its sigma above the lower envelope of all
-    heliostats' values; None when none does, or the heliostat was not among those the plant fit took."""
+    with the width free) lies beyond WIDENED of its sigma above the plant's level, the lower envelope of
+    all heliostats' values; None when none does, or the heliostat was not among those the plant fit took."""
     if shared is None or set(named) - {"tracking"}:
         return None
     for effect in shared.get("shared", []):
         for name, value in effect.get("values", {}).items():
             alone = value.get("alone", {}).get(heliostat)
-            if "envelope" not in value or alone is None or not alone["sigma"] > 0:
-                continue
-            z = (alone["value"] - value["envelope"]) / alone["sigma"]
+            if "clipped" not in value or alone is None or not alone["sigma"] > 0:
+                continue  # not a level (the range test's value) or not among the heliostats the plant fit took
+            z = (alone["value"] - value["value"]) / alone["sigma"]
             if z > WIDENED:
                 return (f"own widening unnamed ({name} {alone['value']:.4g} +- {alone['sigma']:.2g} alone, "
-                        f"{z:.1f} sigma above the plant's envelope {value['envelope']:.4g})")
+                        f"{z:.1f} sigma above the plant's envelope {value['value']:.4g})")
     return None
 
 
