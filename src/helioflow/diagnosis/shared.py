@@ -71,6 +71,7 @@ Every heliostat's physics model and diagnosis then take the shared effects at th
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import math
@@ -143,39 +144,51 @@ class Level:
     """The level a shared width's per-heliostat values agree on from below (module docstring, 4 and 6)."""
 
     value: float  # the values' lower envelope (`lower_envelope`)
-    sigma: float  # statistical and systematic, in quadrature
-    statistical: float
     clipped: float  # the one-sided clipping's level (`clipped_level`): |value - clipped| is the systematic sigma
+    kept_sigma: float  # the kept heliostats' inverse-variance sigma, times the root of their chi^2 per dof above 1
     chi2_per_dof: float  # of the kept heliostats' values about the clipped level
     values: list[float]  # each heliostat's own value ...
-    sigmas: list[float]  # ... its marginal sigma (nan or 0: not determined, no weight) ...
+    sigmas: list[float]  # ... its marginal sigma (nan or 0: not determined, given the median sigma) ...
     kept: list[bool]  # ... and whether the clipping kept it (False: a widening of its own)
+
+    @classmethod
+    def of(cls, values: list[float], sigmas: list[float]) -> Level:
+        """The level of `values` (each heliostat's own, with its marginal `sigmas`): their lower
+        envelope, beside the one-sided clipping's level and the heliostats it kept."""
+        v, s = np.asarray(values, float), weighted(sigmas)
+        clipped, kept = clipped_level(v, s)
+        chi2 = float((((v[kept] - clipped) / s[kept]) ** 2).sum() / max(kept.sum() - 1, 1))
+        kept_sigma = float((1.0 / s[kept] ** 2).sum() ** -0.5 * math.sqrt(max(chi2, 1.0)))
+        return cls(lower_envelope(v, s)[0], clipped, kept_sigma, chi2, v.tolist(), np.asarray(sigmas, float).tolist(),
+                   kept.tolist())
+
+    @functools.cached_property
+    def statistical(self) -> float:
+        """The larger of the kept heliostats' sigma and the spread of the envelope over the heliostats
+        resampled (BOOTSTRAP draws: which heliostats happen to carry a widening of their own moves it
+        more than their noise does). A few seconds: computed for the values the plant fit reports."""
+        v, s = np.asarray(self.values), weighted(self.sigmas)
+        optimum = lower_envelope(v, s)[1]
+        draws = np.random.default_rng(0).integers(0, len(v), (BOOTSTRAP, len(v)))
+        resampled = [lower_envelope(v[d], s[d], start=optimum)[0] for d in draws]
+        return max(self.kept_sigma, float(np.std(resampled)))
 
     @property
     def systematic(self) -> float:
         return abs(self.value - self.clipped)
 
-    @classmethod
-    def of(cls, values: list[float], sigmas: list[float]) -> Level:
-        """The level of `values` (each heliostat's own, with its marginal `sigmas`; nan or 0: not
-        determined, given the median sigma): their lower envelope, and its sigma: statistical, the
-        larger of the kept heliostats' inverse-variance sigma (times the root of their chi^2 per degree
-        of freedom where it exceeds 1) and the spread of the envelope over the heliostats resampled
-        (BOOTSTRAP draws: which heliostats happen to carry a widening of their own moves it more than
-        their noise does), and systematic, its distance to the one-sided clipping's level."""
-        v = np.asarray(values, float)
-        s = np.asarray(sigmas, float)
-        usable = np.isfinite(s) & (s > 0)
-        s = np.where(usable, s, np.median(s[usable]) if usable.any() else 1.0)
-        clipped, kept = clipped_level(v, s)
-        chi2 = float((((v[kept] - clipped) / s[kept]) ** 2).sum() / max(kept.sum() - 1, 1))
-        sigma = float((1.0 / s[kept] ** 2).sum() ** -0.5 * math.sqrt(max(chi2, 1.0)))
-        envelope, optimum = lower_envelope(v, s)
-        draws = np.random.default_rng(0).integers(0, len(v), (BOOTSTRAP, len(v)))
-        resampled = [lower_envelope(v[d], s[d], start=optimum)[0] for d in draws]
-        statistical = max(sigma, float(np.std(resampled)))
-        return cls(envelope, math.hypot(statistical, clipped - envelope), statistical, clipped, chi2, v.tolist(),
-                   np.asarray(sigmas, float).tolist(), kept.tolist())
+    @property
+    def sigma(self) -> float:
+        """Statistical and systematic, in quadrature."""
+        return math.hypot(self.statistical, self.systematic)
+
+
+def weighted(sigmas: list[float]) -> np.ndarray:
+    """Heliostats' marginal sigmas (n,) for weighting: a value not determined (sigma nan or 0) gets
+    their median, not infinite weight (nor none: it still counts as one heliostat)."""
+    s = np.asarray(sigmas, float)
+    usable = np.isfinite(s) & (s > 0)
+    return np.where(usable, s, np.median(s[usable]) if usable.any() else 1.0)
 
 
 def lower_envelope(v: np.ndarray, s: np.ndarray, start: np.ndarray | None = None) -> tuple[float, np.ndarray]:
@@ -234,9 +247,7 @@ class RangeTest:
     def of(cls, blur: Level, ranges_m: list[float], pixel_m: float) -> RangeTest:
         """The line b_i^2 = b^2 + delta (r_i / p)^2 through the heliostats' own blurs (`blur`, the
         camera's level), from the level's kept set, clipped from above until the kept set repeats."""
-        b, s = np.asarray(blur.values, float), np.asarray(blur.sigmas, float)
-        usable = np.isfinite(s) & (s > 0)
-        s = np.where(usable, s, np.median(s[usable]) if usable.any() else 1.0)
+        b, s = np.asarray(blur.values, float), weighted(blur.sigmas)
         y, sy = b ** 2, 2.0 * np.abs(b) * s
         x = (np.asarray(ranges_m, float) * 1e-3 / pixel_m) ** 2  # px^2 per mrad^2
         design = np.stack([np.ones_like(x), x], 1) / sy[:, None]
