@@ -58,8 +58,8 @@ def test_the_plant_fit_names_the_shared_camera_and_finds_its_blur(plant):
     sun = next(s for s in shared["shared"] if s["effect"] == "sunshape")
     assert not sun["changed"] and sun["params"] == BELIEVED["sunshape"]  # the told sun is kept
     assert blur["sigma"] <= 0.3 and len(blur["alone"]) == N  # every heliostat's own answer beside the plant's
-    agree = sum(a["kept"] for a in blur["alone"].values())  # how many heliostats the shared level rests on
-    assert 1 <= agree <= N and f"where {agree} of the {N} heliostats agree" in shared["verdict"]
+    agree = sum(a["kept"] for a in blur["alone"].values())  # how many heliostats the clipped level rests on
+    assert 1 <= agree <= N and f"the level where the {agree} least widened agree is" in shared["verdict"]
     assert shared["effects"]["camera"]["gain"] == "fit"  # exposure stays each heliostat's own
 
 

@@ -103,8 +103,9 @@ from helioflow.physics.scene import Scene, dataset_scene
 
 log = logging.getLogger(__name__)
 
-BOOTSTRAP = 100  # resamplings of the heliostats for the shared level's sigma
-CLIP = 2.5  # a heliostat whose own value lies this many of its sigma above the shared level has a widening of its own
+BOOTSTRAP = 100  # resamplings of the heliostats for the shared level's statistical sigma
+RESAMPLED_STEPS = 400  # Nelder-Mead iterations of the envelope's fit to resampled values (it starts at the optimum)
+CLIP = 2.5  # a heliostat whose own value lies this many of its sigma above the clipped level has a widening of its own
 OWN = "tracking"  # each heliostat's own effects during the plant fit (drt_effects, kinematics only)
 RANGE_SIGNIFICANCE = 3.0  # the sun's variance deficit this many of its sigma from 0: the sun's width is renamed
 RANGE_HINT = 2.0  # ... this many: the verdict says the sun may be off, and what would tell
@@ -210,10 +211,10 @@ def lower_envelope(v: np.ndarray, s: np.ndarray, start: np.ndarray | None = None
     if start is None:
         low = float(np.sort(y)[:max(3, len(y) // 5)].mean())
         spread = lambda b2: math.log(max(float(np.median(y)) - b2, 1e-3))
-        starts = [np.array([b2, 0.0, spread(b2)]) for b2 in (low, float(y.min()), float(np.median(y)))]
-    else:
-        starts = [start]
-    best = min((optimize.minimize(nll, p, method="Nelder-Mead", options={"xatol": 1e-6, "fatol": 1e-8, "maxiter": 4000})
+        starts, steps = [np.array([b2, 0.0, spread(b2)]) for b2 in (low, float(y.min()), float(np.median(y)))], 4000
+    else:  # a resampling: values repeated make pi and tau flat directions, which Nelder-Mead would walk for long
+        starts, steps = [start], RESAMPLED_STEPS
+    best = min((optimize.minimize(nll, p, method="Nelder-Mead", options={"xatol": 1e-6, "fatol": 1e-8, "maxiter": steps})
                 for p in starts), key=lambda f: f.fun)
     return math.sqrt(max(float(best.x[0]), 0.0)), best.x
 
