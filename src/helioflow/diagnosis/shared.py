@@ -76,7 +76,7 @@ import json
 import logging
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -151,6 +151,7 @@ class Level:
     values: list[float]  # each heliostat's own value ...
     sigmas: list[float]  # ... its marginal sigma (nan or 0: not determined, given the median sigma) ...
     kept: list[bool]  # ... and whether the clipping kept it (False: a widening of its own)
+    optimum: np.ndarray = field(repr=False)  # (3,) the envelope's fit (`lower_envelope`): where resamplings start
 
     @classmethod
     def of(cls, values: list[float], sigmas: list[float]) -> Level:
@@ -160,8 +161,9 @@ class Level:
         clipped, kept = clipped_level(v, s)
         chi2 = float((((v[kept] - clipped) / s[kept]) ** 2).sum() / max(kept.sum() - 1, 1))
         kept_sigma = float((1.0 / s[kept] ** 2).sum() ** -0.5 * math.sqrt(max(chi2, 1.0)))
-        return cls(lower_envelope(v, s)[0], clipped, kept_sigma, chi2, v.tolist(), np.asarray(sigmas, float).tolist(),
-                   kept.tolist())
+        envelope, optimum = lower_envelope(v, s)
+        return cls(envelope, clipped, kept_sigma, chi2, v.tolist(), np.asarray(sigmas, float).tolist(), kept.tolist(),
+                   optimum)
 
     @functools.cached_property
     def statistical(self) -> float:
@@ -169,9 +171,8 @@ class Level:
         resampled (BOOTSTRAP draws: which heliostats happen to carry a widening of their own moves it
         more than their noise does). A few seconds: computed for the values the plant fit reports."""
         v, s = np.asarray(self.values), weighted(self.sigmas)
-        optimum = lower_envelope(v, s)[1]
         draws = np.random.default_rng(0).integers(0, len(v), (BOOTSTRAP, len(v)))
-        resampled = [lower_envelope(v[d], s[d], start=optimum)[0] for d in draws]
+        resampled = [lower_envelope(v[d], s[d], start=self.optimum)[0] for d in draws]
         return max(self.kept_sigma, float(np.std(resampled)))
 
     @property
