@@ -520,7 +520,13 @@ def density_lookup(sun: SunShape, slope_error: float) -> Callable[[Tensor], Tens
 
 def footprint(density, unit: Tensor, path: Tensor, pixel: Tensor, reach: tuple[int, int],
               supersampling: int = FOOTPRINT_SUPERSAMPLING) -> Tensor:
-    """Flux (W/m^2 per W) of one ray around its hit point, at pixel offsets.
+    """Flux (W/m^2 per W) of one ray around its hit point, at pixel offsets: the beam spread's
+    angular density at the angle theta between the ray and the direction to the point, times the
+    solid angle per target area there, |n . (P - M)| / |P - M|^3 (M the mirror point, P the target
+    point, n the target normal). Both exact: the far side of an oblique footprint is stretched
+    more than the near side, which moves the spot's centroid by ~ sigma^2 tan(gamma) / cos^2(gamma)
+    (sigma the beam spread, gamma the ray's incidence on the target; 0.03 mrad for a 3.3 mrad sun
+    at 50 degrees), so the footprint is not point-symmetric.
 
     Args:
         density: theta (rad) -> angular density (1/sr) of the beam spread.
@@ -532,23 +538,24 @@ def footprint(density, unit: Tensor, path: Tensor, pixel: Tensor, reach: tuple[i
 
     Returns:
         (B, 2 Jr + 1, 2 Jc + 1) averaged over each pixel; row offset i means the pixel lies i rows
-        below the hit. The footprint is point-symmetric (theta depends on the offset squared), so
-        rows -Jr..0 are evaluated and the rest mirrored.
+        below the hit.
     """
     dtype, device = unit.dtype, unit.device
     sub = (torch.arange(supersampling, dtype=dtype, device=device) + 0.5) / supersampling - 0.5
     du = (torch.arange(-reach[1], reach[1] + 1, dtype=dtype, device=device)[:, None] + sub).reshape(-1)
-    dv = -(torch.arange(-reach[0], 1, dtype=dtype, device=device)[:, None] + sub).reshape(-1)
+    dv = -(torch.arange(-reach[0], reach[0] + 1, dtype=dtype, device=device)[:, None] + sub).reshape(-1)
     du, dv = du * pixel[:, 0, None], dv * pixel[:, 1, None]  # (B, Wk * q), (B, Hk * q) in m
     eu, ev = unit[:, 1, None, None], unit[:, 2, None, None]
-    inv_r2 = (1.0 / path**2)[:, None, None]
+    r = path[:, None, None]
     du, dv = du[:, None, :], dv[:, :, None]
-    theta2 = (dv**2 * ((1 - ev**2) * inv_r2) + du**2 * ((1 - eu**2) * inv_r2)) - (2 * eu * ev * inv_r2 * du) * dv
-    theta = theta2.clamp_min(1e-24).sqrt()
-    fine = density(theta) * (unit[:, 0, None, None].abs() * inv_r2)  # (B, (Jr + 1) q, Wk q)
-    columns = sum(fine[..., i::supersampling] for i in range(supersampling))  # (B, (Jr + 1) q, Wk)
-    top = sum(columns[:, i::supersampling] for i in range(supersampling)) / supersampling**2
-    return torch.cat((top, top[:, :-1].flip(-2, -1)), dim=-2)
+    along = (eu * du + ev * dv)  # (P - M) = path e + d: its component along e is path + e . d
+    across2 = (du**2 + dv**2 - along**2).clamp_min(1e-24)  # and |e x (P - M)|^2 = |d|^2 - (e . d)^2
+    along = along + r
+    distance2 = along**2 + across2
+    theta = torch.atan2(across2.sqrt(), along)
+    fine = density(theta) * (unit[:, 0, None, None].abs() * r / (distance2 * distance2.sqrt()))  # (B, Hk q, Wk q)
+    columns = sum(fine[..., i::supersampling] for i in range(supersampling))  # (B, Hk q, Wk)
+    return sum(columns[:, i::supersampling] for i in range(supersampling)) / supersampling**2
 
 
 def convolve(images: Tensor, kernels: Tensor) -> Tensor:
