@@ -13,7 +13,9 @@ sun, tracking fitted, the case's spread fitted) is fitted on the 8 with its unce
 - planning: 4 more images chosen by `plan` among the candidates (d_optimal; and targeted at the
   worst determined parameters), 4 drawn at random (3 draws, their mean), and the next 4 in time;
   each refitted with the 8 and scored: the sigma of the parameters that were worst determined (the
-  3 whose sigma all 24 candidates would shrink most), and the held-out error (misplaced flux).
+  3 whose sigma all 24 candidates would shrink most), the held-out error (misplaced flux, whose
+  floor is the images' noise) and the held-out centroids' error about the true spots' (RMS, mrad:
+  the prediction's own error, without the measurement's noise).
 
 `--known 3`: the first fit has only the first 3 of the 8 (same candidates, same held-out images):
 few images, where the tracking's parameters are confounded and the prediction itself is uncertain,
@@ -34,11 +36,11 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from paint_world import World, write_paint_folder  # noqa: E402
+from paint_world import Scene, World, trace_image, write_paint_folder  # noqa: E402
 
 from helioflow.data.hdf5 import read_dataset  # noqa: E402
 from helioflow.data.noise import measure_noise  # noqa: E402
-from helioflow.data.paint import import_paint  # noqa: E402
+from helioflow.data.paint import import_paint, resample_area  # noqa: E402
 from helioflow.data.surfaces import read_heliostat  # noqa: E402
 from helioflow.models.physics_fit import (  # noqa: E402
     FitSettings,
@@ -86,6 +88,16 @@ def centroid_noise_mrad(scene, images: torch.Tensor, slant_m: float) -> np.ndarr
     return (torch.stack(out, 1) / slant_m * 1e3).numpy()
 
 
+def true_centroids_mrad(world: World, suns: list[tuple[float, float]], scene, slant_m: float, seed: int) -> np.ndarray:
+    """(N, 2) centroids (mrad, right / up) of the world's expected spots at `suns` (azimuth,
+    elevation deg): 4e6 Monte Carlo rays each, not rounded to 8 bits, area-averaged as imported."""
+    rng, images = np.random.default_rng([seed, 99]), []
+    for azimuth, elevation in suns:
+        flux = sum(trace_image(Scene(world.target), world, azimuth, elevation, 2_000_000, rng) for _ in range(2))
+        images.append(resample_area(flux / flux.max(), scene.target.resolution))
+    return (scene.target.centroid(torch.as_tensor(np.stack(images)).float()).double() / slant_m * 1e3).numpy()
+
+
 def run_case(name: str, seed: int, root: Path, known: int = TAKEN) -> dict:
     """One case and seed; `known`: how many of the 8 images taken so far the first fit has (the
     first ones in time; fewer leave the prediction itself undetermined)."""
@@ -115,6 +127,16 @@ def run_case(name: str, seed: int, root: Path, known: int = TAKEN) -> dict:
         with torch.no_grad():
             pred, lost = scene.simulate(fit.effects, fit.tensors, d.azimuth_deg, d.elevation_deg, with_lost=True)
         return float(misplaced_flux(pred, d.images, lost).mean())
+
+    truth = true_centroids_mrad(world, list(zip(ds.azimuth_deg[held].tolist(), ds.elevation_deg[held].tolist())),
+                                scene, slant, seed)
+
+    def centroid_error(fit) -> float:
+        """RMS (mrad) of the predicted held-out centroids about the true ones (no measurement noise)."""
+        d = data(held)
+        with torch.no_grad():
+            pred = scene.simulate(fit.effects, fit.tensors, d.azimuth_deg, d.elevation_deg)
+        return float(np.sqrt(((scene.target.centroid(pred).double().numpy() / slant * 1e3 - truth) ** 2).mean()))
 
     t0 = time.time()
     first = fitted(taken)
@@ -151,6 +173,7 @@ def run_case(name: str, seed: int, root: Path, known: int = TAKEN) -> dict:
     out["sigma_worst_before"] = float(np.sqrt(np.mean(u.sigma[worst] ** 2)))
     out["sigma_worst_before_noise_only"] = float(np.sqrt(np.mean(u.sigma[worst] ** 2) / max(1.0, u.structure)))
     out["heldout_error_before"] = heldout_error(first)
+    out["centroid_error_before"] = centroid_error(first)
     out["strategies"] = {}
     for strategy, chosen in picks.items():
         refit = fitted(np.concatenate([taken, pool[chosen]]), start=first)
@@ -161,9 +184,10 @@ def run_case(name: str, seed: int, root: Path, known: int = TAKEN) -> dict:
                                        "structure": refit.uncertainty.structure,
                                        "sigma_worst_noise_only": float(np.sqrt(np.mean(refit.uncertainty.sigma[worst] ** 2)
                                                                                / max(1.0, refit.uncertainty.structure))),
-                                       "heldout_error": heldout_error(refit)}
+                                       "heldout_error": heldout_error(refit),
+                                       "centroid_error": centroid_error(refit)}
     draws = [out["strategies"][f"random {i + 1}"] for i in range(RANDOM_DRAWS)]
-    out["strategies"]["random"] = {k: float(np.mean([d[k] for d in draws])) for k in ("sigma_worst", "heldout_error")}
+    out["strategies"]["random"] = {k: float(np.mean([d[k] for d in draws])) for k in ("sigma_worst", "heldout_error", "centroid_error")}
     out["seconds"] = round(time.time() - t0, 1)
     return out
 
