@@ -524,10 +524,10 @@ def footprint(density, unit: Tensor, path: Tensor, pixel: Tensor, reach: tuple[i
     angular density at the angle theta between the ray and the direction to the point, times the
     solid angle per target area there, |n . (P - M)| / |P - M|^3 (M the mirror point, P the target
     point, n the target normal); both exact in the offset along the ray, to first order in theta^2
-    (relative error ~1.5 theta^2: 1e-4 at 8 mrad, 3e-3 at the Buie aureole's 43.6 mrad edge). The far side of an oblique footprint is thus stretched more than the near
-    side, which moves the spot's centroid by ~ sigma^2 tan(g) / cos^2(g) (sigma the beam spread, g
-    the ray's incidence on the target: 0.03 mrad for a 3.3 mrad sun at 50 degrees); the footprint
-    is not point-symmetric.
+    (relative error ~1.5 theta^2: 1e-4 at 8 mrad, 3e-3 at the Buie aureole's 43.6 mrad edge). The
+    far side of an oblique footprint is thus stretched more than the near side, which moves the
+    spot's centroid by ~ sigma^2 tan(g) / cos^2(g) (sigma the beam spread, g the ray's incidence on
+    the target: 0.03 mrad for a 3.3 mrad sun at 50 degrees); the footprint is not point-symmetric.
 
     Args:
         density: theta (rad) -> angular density (1/sr) of the beam spread.
