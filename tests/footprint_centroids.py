@@ -5,8 +5,9 @@ footprint's far side (docs/physics.md, "The tracer"). A measurement script, not 
 The ideal AA39, no tracking error, a Gaussian sun (3.3 mrad per axis; --sigma), at 8 sun positions
 of a calibration year: centroids (mrad, right / up) of helioflow's kernel trace, its reference
 tracer (2e6 rays each) and paint_world's Monte Carlo (4e6 rays, area-averaged to 64 x 64 as the
-import does). Prints each difference per sun position and their means; --against REV also traces
-with the footprint of that git revision (e.g. main), in the same process.
+import does: uncertainty_cases.true_centroids_mrad). Prints each difference per sun position and
+their means; --against REV also traces with the footprint of that git revision (e.g. main), in the
+same process.
 
 Run: python tests/footprint_centroids.py [--sigma 3.3] [--against REV]
 """
@@ -25,10 +26,11 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from paint_world import Scene, World, calibration_suns, trace_image, write_paint_folder  # noqa: E402
+from paint_world import World, calibration_suns, write_paint_folder  # noqa: E402
+from uncertainty_cases import true_centroids_mrad  # noqa: E402
 
 from helioflow.data.hdf5 import read_dataset  # noqa: E402
-from helioflow.data.paint import import_paint, resample_area  # noqa: E402
+from helioflow.data.paint import import_paint  # noqa: E402
 from helioflow.data.surfaces import read_heliostat  # noqa: E402
 from helioflow.physics import raytrace  # noqa: E402
 from helioflow.physics.reference import reference_trace  # noqa: E402
@@ -50,6 +52,14 @@ def footprint_of(revision: str):
     return module.footprint
 
 
+def imported_aa39(world: World):
+    """(dataset, ideal heliostat) of AA39 as imported from PAINT: the target and geometry only."""
+    folder = Path(tempfile.mkdtemp())
+    write_paint_folder(folder, world, n_images=1, rays=10_000, seed=0)
+    import_paint(folder, "AA39", folder / "data.h5", folder / "aa39.h5", holdout=[], dataset="geometry")
+    return read_dataset(folder / "data.h5"), read_heliostat(folder / "aa39.h5").ideal()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sigma", type=float, default=3.3, help="the Gaussian sun's sigma per axis (mrad)")
@@ -57,11 +67,7 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(2)
     world = World(sun=("gaussian", args.sigma))
-    folder = Path(tempfile.mkdtemp())
-    write_paint_folder(folder, world, n_images=1, rays=10_000, seed=0)  # the geometry, as imported
-    import_paint(folder, "AA39", folder / "data.h5", folder / "aa39.h5", holdout=[], dataset="geometry")
-    ds = read_dataset(folder / "data.h5")
-    heliostat = read_heliostat(folder / "aa39.h5").ideal()
+    ds, heliostat = imported_aa39(world)
     scene = dataset_scene(heliostat, ds.attrs, (64, 64), 16, 50_000, False)
     slant = float(np.linalg.norm(np.subtract(ds.attrs["target_center_m"], heliostat.position.numpy())))
     effects = {"sunshape": {"kind": "gaussian", "sigma_mrad": args.sigma}}
@@ -80,11 +86,7 @@ def main() -> None:
     h64 = physics.heliostat.to("cpu", torch.float64)
     reference = mrad([reference_trace(h64, scene.target, math.radians(a), math.radians(e), physics.optics, 2_000_000,
                                       seed=i) for i, (a, e) in enumerate(SUNS)])
-    rng, monte_carlo = np.random.default_rng(5), []
-    for a, e in SUNS:
-        flux = sum(trace_image(Scene(world.target), world, a, e, 2_000_000, rng) for _ in range(2))
-        monte_carlo.append(resample_area(flux / flux.max(), (64, 64)))
-    monte_carlo = mrad(monte_carlo)
+    monte_carlo = true_centroids_mrad(world, SUNS, scene, slant, 5)
     np.set_printoptions(precision=4, suppress=True)
     for name, c in {**fast, "reference": reference}.items():
         print(f"{name} - Monte Carlo (mrad, right / up), per sun position:\n{c - monte_carlo}")

@@ -10,20 +10,16 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from footprint_centroids import SUNS, footprint_of  # noqa: E402
-from paint_world import World, write_paint_folder  # noqa: E402
+from footprint_centroids import SUNS, footprint_of, imported_aa39  # noqa: E402
+from paint_world import World  # noqa: E402
 
 from helioflow import bench  # noqa: E402
-from helioflow.data.hdf5 import read_dataset  # noqa: E402
-from helioflow.data.paint import import_paint  # noqa: E402
-from helioflow.data.surfaces import read_heliostat  # noqa: E402
 from helioflow.physics import field, raytrace  # noqa: E402
 from helioflow.physics.scene import dataset_scene  # noqa: E402
 
@@ -47,11 +43,7 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(2)
     footprints = {"now": raytrace.footprint, args.against: footprint_of(args.against)}
-    folder = Path(tempfile.mkdtemp())
-    write_paint_folder(folder, World(), n_images=1, rays=10_000, seed=0)
-    import_paint(folder, "AA39", folder / "data.h5", folder / "aa39.h5", holdout=[], dataset="geometry")
-    ds = read_dataset(folder / "data.h5")
-    heliostat = read_heliostat(folder / "aa39.h5").ideal()
+    ds, heliostat = imported_aa39(World())
     effects = {"sunshape": {"kind": "gaussian", "sigma_mrad": 3.3}, "slope_error": {"sigma_mrad": 1.5}}
     az, el = (torch.tensor([s[i] for s in SUNS] * 2) for i in (0, 1))
     with torch.no_grad():
@@ -64,7 +56,8 @@ def main() -> None:
             heliostats, receiver, physics, a, e = bench.field_scene(n)
             options = {"blocking_shading": physics.blocking_shading}
             field.field_flux(bench.field_scene(10)[0], receiver, a, e, physics.optics, **options)  # tables filled
-            t = alternated(lambda: field.field_flux(heliostats, receiver, a, e, physics.optics, **options), footprints, 2)
+            t = alternated(lambda: field.field_flux(heliostats, receiver, a, e, physics.optics, **options),
+                           footprints, 2)
             print(f"field map, {n} heliostats: " + ", ".join(f"{k} {v:.2f} s" for k, v in t.items())
                   + f"  (ratio {t['now'] / t[args.against]:.2f})", flush=True)
 
