@@ -10,8 +10,10 @@ sun, tracking fitted, the case's spread fitted) is fitted on the 8 with its unce
 - coverage: is the true spread within its 95 % interval, and each held-out image's measured
   centroid within the 95 % interval of the predicted one (the prediction's sigma from the
   covariance and the measured centroid's own noise, from the images' noise model, together)?
-- planning: 4 more images chosen by `plan` among the candidates (d_optimal; and targeted at the
-  worst determined parameters), 4 drawn at random (3 draws, their mean), and the next 4 in time;
+- planning: 4 more images chosen by `plan` among the candidates (d_optimal; targeted at the worst
+  determined parameters; and targeted at the centroids predicted at the held-out images' sun
+  positions, which an ephemeris knows in advance: "predictions"), 4 drawn at random (3 draws, their
+  mean), and the next 4 in time;
   each refitted with the 8 and scored: the sigma of the parameters that were worst determined (the
   3 whose sigma all 24 candidates would shrink most), the held-out error (misplaced flux, whose
   floor is the images' noise) and the held-out centroids' error about the true spots' (RMS, mrad:
@@ -160,7 +162,9 @@ def run_case(name: str, seed: int, root: Path, known: int = TAKEN) -> dict:
     every = [p.sigma_after for p in plan(information, u, CANDIDATES)][-1]  # sigma after all candidates
     worst = np.argsort(-(u.sigma / np.maximum(every, 1e-12)))[:3]  # the parameters the candidates teach most about
     planned = {"plan": plan(information, u, ADDED),
-               "plan, targeted": plan(information, u, ADDED, "targets", [u.names[i] for i in worst])}
+               "plan, targeted": plan(information, u, ADDED, "targets", [u.names[i] for i in worst]),
+               "plan, predictions": plan(information, u, ADDED, "predictions",
+                                         predictions=spot["centroid_jacobian"].flatten(0, 1))}
     expected = {k: float(np.sqrt(np.mean(v[-1].sigma_after[worst] ** 2))) for k, v in planned.items()}
     picks = {**{k: [p.index for p in v] for k, v in planned.items()},
              **{f"random {i + 1}": list(np.random.default_rng([seed, i]).choice(CANDIDATES, ADDED, replace=False))

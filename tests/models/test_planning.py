@@ -18,7 +18,7 @@ from helioflow.models.physics_fit import (
     with_uncertainty,
 )
 from helioflow.models.planning import canonical_correlation, image_information, plan, sun_path
-from helioflow.models.uncertainty import end_state
+from helioflow.models.uncertainty import FitUncertainty, end_state, predicted_spread
 
 TRUTH = {"tracking": torch.tensor([0.8, -0.5, 0.3, -0.6, 0.4])}
 WORLD = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 1.5}, "tracking": {}}
@@ -56,6 +56,33 @@ def test_the_sigma_a_plan_expects_is_the_sigma_of_the_refit_with_the_picked_imag
     k = fit.uncertainty.index(target)
     targeted = plan(information, fit.uncertainty, 3, "targets", targets=[target])
     assert targeted[-1].sigma_after[k] <= picks[-1].sigma_after[k] * 1.0001
+    # the image that makes the centroids predicted at two far sun positions surest (one pick: the
+    # greedy choice is the best single image) does so at least as well as the information gain's
+    far = end_state(s, fit, torch.tensor([-100.0, 100.0]), torch.tensor([20.0, 20.0]), taken.scale, "absolute", masks)
+    g = predicted_spread(far, fit.fitted, masks, fit.uncertainty)["centroid_jacobian"].flatten(0, 1).numpy()
+
+    def predicted_variance(pick) -> float:  # mrad^2, summed over the 4 centroid coordinates
+        after = np.linalg.pinv(np.linalg.pinv(fit.uncertainty.covariance) + information[pick.index].numpy())
+        return float(np.trace(g @ after @ g.T))
+
+    aimed = plan(information, fit.uncertainty, 1, "predictions", predictions=torch.as_tensor(g))[0]
+    assert predicted_variance(aimed) <= min(predicted_variance(p) for p in plan(information, fit.uncertainty, 1)) * 1.0001
+
+
+def test_a_plan_for_the_prediction_of_one_parameter_is_the_plan_targeted_at_it():
+    """"targets" is "predictions" with G = rows of the identity: the same picks."""
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(4, 4))
+    covariance = a @ a.T + 0.1 * np.eye(4)
+    u = FitUncertainty([f"e.p{i}" for i in range(4)], [""] * 4, np.zeros(4), covariance, 1.0, 1.0, 1.0)
+    information = torch.as_tensor(np.stack([(v := rng.normal(size=(2, 4))).T @ v for _ in range(10)]))
+    for k in range(4):
+        by_name = plan(information, u, 3, "targets", targets=[f"e.p{k}"])
+        by_rows = plan(information, u, 3, "predictions", predictions=torch.eye(4, dtype=torch.float64)[k:k + 1])
+        assert [p.index for p in by_name] == [p.index for p in by_rows]
+        assert np.allclose(by_name[-1].sigma_after, by_rows[-1].sigma_after)
+    with pytest.raises(ValueError, match="predictions"):
+        plan(information, u, 1, "predictions")
 
 
 def test_canonical_correlation_of_two_groups():

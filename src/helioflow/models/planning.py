@@ -15,7 +15,11 @@ greedily, one at a time, each by one of three criteria:
   the uncertainty ellipsoid shrinks most);
 - targeted at named parameters ("targets"): the smallest sum of their variances after it;
 - targeted at a confounded pair of effects ("pair"): the smallest canonical correlation between
-  their parameters after it (what separates them).
+  their parameters after it (what separates them);
+- targeted at predictions ("predictions"; I-optimal): the smallest sum of the variances, after it,
+  of predicted quantities q = G theta to first order (G: their Jacobian by the parameters), by
+  default the spot centroids (right, up) at the sun positions to come: what a prediction there will
+  be off by. "targets" is the case G = rows of the identity.
 
 Candidates: a list of sun positions, or the site's sun path over the next days (`sun_path`), at
 the times the sun stands at least `min_elevation_deg` high (the heliostat can then put its spot on
@@ -32,9 +36,16 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from helioflow.models.uncertainty import FitUncertainty, _State, compared_jacobian, end_state, parameters
+from helioflow.models.uncertainty import (
+    FitUncertainty,
+    _State,
+    compared_jacobian,
+    end_state,
+    parameters,
+    predicted_spread,
+)
 
-CRITERIA = ("d_optimal", "targets", "pair")
+CRITERIA = ("d_optimal", "targets", "pair", "predictions")
 CHUNK = 16  # candidate images whose Jacobian is built at once (memory: CHUNK x pixels x parameters)
 
 
@@ -70,7 +81,8 @@ def image_information(state: _State, fitted: list[tuple[str, str]], masks: dict[
 
 
 def plan(information: Tensor, uncertainty: FitUncertainty, count: int, criterion: str = "d_optimal",
-         targets: list[str] | None = None, pair: tuple[str, str] | None = None) -> list[Pick]:
+         targets: list[str] | None = None, pair: tuple[str, str] | None = None,
+         predictions: Tensor | None = None) -> list[Pick]:
     """The `count` best images among the candidates, picked greedily (module docstring).
 
     Args:
@@ -79,6 +91,8 @@ def plan(information: Tensor, uncertainty: FitUncertainty, count: int, criterion
         criterion: one of CRITERIA.
         targets: parameter names (or name prefixes, e.g. "tracking.") for "targets".
         pair: two effect names for "pair".
+        predictions: (Q, P) for "predictions": the Jacobian of Q predicted quantities by the P
+            parameters (e.g. centroids in mrad per parameter unit: uncertainty.predicted_spread).
     """
     if criterion not in CRITERIA:
         raise ValueError(f"criterion {criterion!r}: expected one of {', '.join(CRITERIA)}")
@@ -90,7 +104,7 @@ def plan(information: Tensor, uncertainty: FitUncertainty, count: int, criterion
         g = root.T @ information @ root  # (M, r, r)
         eye = torch.eye(g.shape[-1], dtype=g.dtype)
         shrink = torch.linalg.inv(eye + g)  # (M, r, r): C after = root shrink root^T
-        score = _score(criterion, g, root, shrink, uncertainty.names, targets, pair)
+        score = _score(criterion, g, root, shrink, uncertainty.names, targets, pair, predictions)
         for pick in chosen:
             score[pick.index] = -np.inf
         best = int(torch.argmax(score))
@@ -99,10 +113,16 @@ def plan(information: Tensor, uncertainty: FitUncertainty, count: int, criterion
     return chosen
 
 
-def _score(criterion: str, g: Tensor, root: Tensor, shrink: Tensor, names: list[str], targets, pair) -> Tensor:
+def _score(criterion: str, g: Tensor, root: Tensor, shrink: Tensor, names: list[str], targets, pair,
+           predictions) -> Tensor:
     """(M,) each candidate's worth under `criterion`, larger is better."""
     if criterion == "d_optimal":
         return torch.linalg.slogdet(torch.eye(g.shape[-1], dtype=g.dtype) + g)[1]
+    if criterion == "predictions":
+        if predictions is None or predictions.shape[-1] != root.shape[0]:
+            raise ValueError(f"predictions: a (Q, {root.shape[0]}) Jacobian of the predicted quantities is needed")
+        rows = predictions.to(root) @ root  # (Q, r)
+        return -torch.einsum("qi,mij,qj->m", rows, shrink, rows)
     if criterion == "targets":
         at = [k for k, n in enumerate(names) if any(n == t or n.startswith(t) for t in targets or ())]
         if not at:
@@ -144,7 +164,8 @@ def plan_measurements(model_path, dataset_path, settings: dict, output=None, dev
     calibration images for a fitted physics model (drt or raytrace) of a dataset, written to
     `output` as JSON (the dict is returned).
 
-    settings: images, criterion (CRITERIA), targets (for "targets"), pair (for "pair"), and the
+    settings: images, criterion (CRITERIA), targets (for "targets"), pair (for "pair"), predict_at
+    [[azimuth_deg, elevation_deg], ...] (for "predictions"; default: the candidates), and the
     candidates: `sun` [[azimuth_deg, elevation_deg], ...], or the sun path: site {latitude_deg,
     longitude_deg, altitude_m} (default: the dataset's own), start (ISO 8601, UTC), days,
     every_minutes, min_elevation_deg.
@@ -169,12 +190,23 @@ def plan_measurements(model_path, dataset_path, settings: dict, output=None, dev
     state = end_state(scene, fit, *sun, model.scale, loss, masks)
     information = image_information(state, fit.fitted, masks, fit.uncertainty)
     pair = tuple(settings["pair"]) if settings.get("pair") else None
-    picks = plan(information, fit.uncertainty, int(settings.get("images", 8)), settings.get("criterion", "d_optimal"),
-                 settings.get("targets"), pair)
+    criterion = settings.get("criterion", "d_optimal")
+    predictions = None
+    if criterion == "predictions":  # the centroids at `predict_at`, or at the candidates themselves
+        at = np.asarray(settings["predict_at"], dtype=float).reshape(-1, 2) if settings.get("predict_at") else \
+            np.stack((azimuth, elevation), -1)
+        where = (torch.as_tensor(at[:, i], dtype=torch.float32, device=model.device) for i in (0, 1))
+        spread = predicted_spread(end_state(scene, fit, *where, model.scale, loss, masks), fit.fitted, masks,
+                                  fit.uncertainty)
+        predictions = spread["centroid_jacobian"].flatten(0, 1)
+    picks = plan(information, fit.uncertainty, int(settings.get("images", 8)), criterion, settings.get("targets"),
+                 pair, predictions)
     names = fit.uncertainty.names
     result = {
         "dataset": ds.attrs.get("dataset", str(dataset_path)), "model": info["network"],
-        "criterion": settings.get("criterion", "d_optimal"), "targets": settings.get("targets"), "pair": pair,
+        "criterion": criterion, "targets": settings.get("targets"), "pair": pair,
+        "predict_at": (None if criterion != "predictions" else
+                       "the candidates" if not settings.get("predict_at") else settings["predict_at"]),
         "candidates": {"count": len(azimuth), "source": source},
         "sigma_now": summary(names, fit.uncertainty.sigma),
         "next": [{"rank": k + 1, "time": None if times is None else times[p.index].isoformat(),

@@ -545,8 +545,9 @@ def predicted_spread(state: _State, fitted: list[tuple[str, str]], masks: dict[s
                      uncertainty: FitUncertainty, with_flux: bool = False) -> dict[str, Tensor]:
     """What the covariance implies for the spots at `state`'s sun positions (N of them), to first
     order: {"centroid_mrad": (N, 2) predicted centroid (target right, up; as seen from the
-    heliostat), "centroid_sigma_mrad": (N, 2) its sigma, and with_flux "flux": (N, H, W) the
-    predicted flux (image units divided by `state.scale`) with "flux_sigma" (N, H, W)}."""
+    heliostat), "centroid_sigma_mrad": (N, 2) its sigma, "centroid_jacobian": (N, 2, P) the
+    centroid's derivative by each parameter (mrad per parameter unit), and with_flux "flux": (N, H, W)
+    the predicted flux (image units divided by `state.scale`) with "flux_sigma" (N, H, W)}."""
     params = parameters(state, fitted, masks)
     if [p.name for p in params] != uncertainty.names:
         raise ValueError("the uncertainty was computed for other parameters than this fit's")
@@ -561,7 +562,8 @@ def predicted_spread(state: _State, fitted: list[tuple[str, str]], masks: dict[s
             f_columns[:, k] = ((plus[0] - minus[0]) / (2.0 * step)).flatten().float()
     cov = torch.as_tensor(uncertainty.covariance)
     out = {"centroid_mrad": centroid(images),
-           "centroid_sigma_mrad": torch.einsum("nap,pq,naq->na", c_columns, cov, c_columns).clamp_min(0).sqrt()}
+           "centroid_sigma_mrad": torch.einsum("nap,pq,naq->na", c_columns, cov, c_columns).clamp_min(0).sqrt(),
+           "centroid_jacobian": c_columns}
     if with_flux:
         values, vectors = torch.linalg.eigh(cov)
         root = (vectors * values.clamp_min(0).sqrt()).float()  # cov = root root^T
