@@ -118,16 +118,17 @@ def _score(criterion: str, g: Tensor, root: Tensor, shrink: Tensor, names: list[
     """(M,) each candidate's worth under `criterion`, larger is better."""
     if criterion == "d_optimal":
         return torch.linalg.slogdet(torch.eye(g.shape[-1], dtype=g.dtype) + g)[1]
-    if criterion == "predictions":
-        if predictions is None or predictions.shape[-1] != root.shape[0]:
+    if criterion in ("targets", "predictions"):  # the summed variance after it of q = G theta (targets: G's
+        if criterion == "targets":                # rows those of the identity at the named parameters)
+            at = [k for k, n in enumerate(names) if any(n == t or n.startswith(t) for t in targets or ())]
+            if not at:
+                raise ValueError(f"targets {targets}: none of the fit's parameters ({', '.join(names[:6])}, ...)")
+            rows = root[at]  # (Q, r)
+        elif predictions is None or predictions.shape[-1] != root.shape[0]:
             raise ValueError(f"predictions: a (Q, {root.shape[0]}) Jacobian of the predicted quantities is needed")
-        rows = predictions.to(root) @ root  # (Q, r)
+        else:
+            rows = predictions.to(root) @ root  # (Q, r)
         return -torch.einsum("qi,mij,qj->m", rows, shrink, rows)
-    if criterion == "targets":
-        at = [k for k, n in enumerate(names) if any(n == t or n.startswith(t) for t in targets or ())]
-        if not at:
-            raise ValueError(f"targets {targets}: none of the fit's parameters ({', '.join(names[:6])}, ...)")
-        return -torch.einsum("pi,mij,pj->m", root[at], shrink, root[at])
     a, b = ([k for k, n in enumerate(names) if n.startswith(e + ".")] for e in pair or ("", ""))
     if not a or not b:
         raise ValueError(f"pair {pair}: both effects must have fitted parameters")
