@@ -20,6 +20,7 @@ import math
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -39,8 +40,8 @@ from helioflow.physics.scene import dataset_scene  # noqa: E402
 SUNS = calibration_suns(8, 1)
 
 
-def footprint_of(revision: str):
-    """raytrace.footprint as it was at a git revision."""
+def raytrace_of(revision: str):
+    """The module helioflow.physics.raytrace as it was at a git revision."""
     source = subprocess.run(["git", "show", f"{revision}:src/helioflow/physics/raytrace.py"], check=True,
                             capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1]).stdout
     path = Path(tempfile.mkdtemp()) / "raytrace_then.py"
@@ -49,7 +50,25 @@ def footprint_of(revision: str):
     module = importlib.util.module_from_spec(spec)
     sys.modules["raytrace_then"] = module
     spec.loader.exec_module(module)
-    return module.footprint
+    return module
+
+
+def footprint_of(revision: str):
+    """raytrace.footprint as it was at a git revision."""
+    return raytrace_of(revision).footprint
+
+
+def alternated(run, variants: dict, repeats: int) -> dict[str, float]:
+    """The least wall time (s) of `run()` per variant over `repeats` rounds, variants alternated so
+    that their ratio is measured under one load; `variants` maps a name to a function that installs it."""
+    times = {name: [] for name in variants}
+    for _ in range(repeats):
+        for name, install in variants.items():
+            install()
+            start = time.perf_counter()
+            run()
+            times[name].append(time.perf_counter() - start)
+    return {name: min(t) for name, t in times.items()}
 
 
 def imported_aa39(world: World):

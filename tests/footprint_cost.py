@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from footprint_centroids import SUNS, footprint_of, imported_aa39  # noqa: E402
+from footprint_centroids import SUNS, alternated, footprint_of, imported_aa39  # noqa: E402
 from paint_world import World  # noqa: E402
 
 from helioflow import bench  # noqa: E402
@@ -24,16 +23,11 @@ from helioflow.physics import field, raytrace  # noqa: E402
 from helioflow.physics.scene import dataset_scene  # noqa: E402
 
 
-def alternated(run, footprints: dict, repeats: int) -> dict[str, float]:
-    """The least wall time (s) of `run()` per footprint over `repeats` rounds, footprints alternated."""
-    times = {name: [] for name in footprints}
-    for _ in range(repeats):
-        for name, f in footprints.items():
-            raytrace.footprint = field.footprint = f
-            start = time.perf_counter()
-            run()
-            times[name].append(time.perf_counter() - start)
-    return {name: min(t) for name, t in times.items()}
+def installing(f):
+    """A variant for `alternated`: `f` as the footprint of both tracers."""
+    def install():
+        raytrace.footprint = field.footprint = f
+    return install
 
 
 def main() -> None:
@@ -42,7 +36,7 @@ def main() -> None:
     ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000])
     args = ap.parse_args()
     torch.set_num_threads(2)
-    footprints = {"now": raytrace.footprint, args.against: footprint_of(args.against)}
+    footprints = {"now": installing(raytrace.footprint), args.against: installing(footprint_of(args.against))}
     ds, heliostat = imported_aa39(World())
     effects = {"sunshape": {"kind": "gaussian", "sigma_mrad": 3.3}, "slope_error": {"sigma_mrad": 1.5}}
     az, el = (torch.tensor([s[i] for s in SUNS] * 2) for i in (0, 1))

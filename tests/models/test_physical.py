@@ -222,7 +222,7 @@ def test_pinned_hops_bring_a_fit_whose_facets_cover_for_each_other_back_to_the_t
     def errors(t: dict) -> torch.Tensor:
         return (t["surface"] - truth).flatten(1).norm(dim=1) / truth.flatten(1).norm(dim=1)
 
-    assert errors(stuck).min() > 0.3
+    assert errors(stuck).min() > 0.25
     assert starts[0][0].abs().max() == 0.0 and not starts[0][1]  # facet 0 pinned flat
     assert starts[1][1]  # then freed
     assert errors(hopped).max() < 0.01, errors(hopped)

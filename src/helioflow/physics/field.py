@@ -7,8 +7,9 @@ reflected ray blocked, then it meets the receiver plane. As in raytrace's `kerne
 beam spread (sun shape convolved with the slope error, sun.radial_density) enters as the analytic
 footprint of each central ray, flux = power * f(theta) * cos(gamma) / r^2. The approximation that
 makes a field cheap: per heliostat one footprint, that of its power-weighted mean ray (raytrace
-takes one per facet; across a heliostat the ray direction changes by its size over the slant
-range, ~1 %), with its own slope error where FieldHeliostats.slope_error gives one, and each
+adds its first-order change across the heliostat: across a heliostat the ray direction changes by
+its size over the slant range, ~1 %, which skews the spot; see raytrace.splat_footprints), with its
+own slope error where FieldHeliostats.slope_error gives one, and each
 heliostat's spot is computed on its own grid of WINDOW x WINDOW cells that covers the spot's reach
 on the receiver, with cells an integer number k of receiver pixels wide, then interpolated
 bilinearly onto the receiver pixels. Near heliostats (small spots) get k = 1, the receiver's own
@@ -19,7 +20,9 @@ extent), averaged over q x q points per cell where it is sharp on the scale of a
 the cell centre where its finest structure (sun.finest_scale) spans SMOOTH_CELLS cells or more
 (tests/physics/test_field.py: 70 dB against supersampling everywhere); the interpolation onto the
 receiver is separable, so a chunk's spots sum into the map as one matrix product. For one heliostat the field tracer
-and raytrace.trace(splat="kernel") agree to 2e-4 in power on the receiver and 45-56 dB PSNR
+and raytrace.trace(splat="kernel") agree to 2e-4 in power on the receiver (6e-4 for a far spot
+that spills, where the kernel tracer's first-order footprints are the reference tracer's to 1.5e-4)
+and 45-56 dB PSNR
 (tests/physics/test_field.py); both blur by the slope error isotropically (see raytrace). Shading
 and blocking act on whole cells (their central rays); the sun's finite size (penumbra), the
 tower's shadow and blocking by facets of the same heliostat are neglected.

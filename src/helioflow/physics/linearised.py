@@ -8,8 +8,10 @@ order is exact to well below a hundredth of a pixel for a hit displaced by pixel
 spot nonlinear in the errors is only how those hits pile up into pixels. So `linearise` traces the
 hits and their derivatives once, for fixed sun positions, and `LinearisedTrace.images` rebuilds
 the kernel trace's images from them: hits moved along the derivatives, deposited bilinearly and
-convolved with the beam-spread footprint of each image's mean ray (one convolution per image
-instead of one per facet).
+convolved with the beam-spread footprint of each image's mean ray (one convolution per image;
+the kernel trace adds the footprint's first-order change across the heliostat, three more
+convolutions, which a fit's many descent steps would pay: the fit's polish, a Gauss-Newton search
+on the exact trace, finds the optimum with it).
 
 The derivatives are small: by the 5 tracking errors, by the facet's own 2 canting tilts, and by the
 cell's own height and two slopes, which the control heights set through the B-spline basis
@@ -31,7 +33,6 @@ from helioflow.physics.raytrace import (
     Optics,
     _project,
     central_hits,
-    mean_rays,
     mirror_points,
     padded_canvas,
     splat_footprints,
@@ -108,9 +109,19 @@ class LinearisedTrace:
             power = power * torch.broadcast_to(weight, (n_sun, weight.shape[-1])).reshape(power.shape)
         power = power[:, index].reshape(n_sun, -1)
         moved = moved.reshape(n_sun, -1, 2)
-        flux = splat_footprints(moved[..., 0], moved[..., 1], power, self.unit, self.path, self.target,
-                                optics) / self.target.pixel_area
+        flux = splat_footprints(moved[..., 0], moved[..., 1], power, self.target, optics, (self.unit, self.path)) \
+            / self.target.pixel_area
         return (flux, power.sum(-1)) if with_launched else flux
+
+
+def mean_ray(unit: Tensor, path: Tensor, power: Tensor) -> tuple[Tensor, Tensor]:
+    """The power-weighted mean ray of each image: unit (S, P, 3) central-ray directions on the
+    target's (normal, right, up), path (S, P) lengths (m) and power (S, P) (W) -> (S, 3) unit
+    directions, (S,) paths. An image without power (all its points masked or facing away) gets its
+    points' plain mean."""
+    weight = torch.where(power.sum(-1, keepdim=True) > 0.0, power, torch.ones_like(power))
+    weight = weight / weight.sum(-1, keepdim=True)
+    return normalize((weight[..., None] * unit).sum(1)), (weight * path).sum(-1)
 
 
 def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: Tensor, cells_per_side: int,
@@ -151,7 +162,7 @@ def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: 
         return torch.stack((col, row), -1).reshape(*shape, 2), power.reshape(shape), unit, path
 
     hits, power, unit, path = traced(base)
-    mean_unit, mean_path = mean_rays(unit, path, power.reshape(len(sun), -1), 1)
+    mean_unit, mean_path = mean_ray(unit, path, power.reshape(len(sun), -1))
 
     def derivative(key: str, entry: int) -> Tensor:
         moved = []
