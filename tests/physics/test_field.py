@@ -119,8 +119,8 @@ def test_one_heliostat_agrees_with_the_kernel_tracer(sun, position, size):
     receiver, centroid and image agree. The near heliostat's spot is computed on the receiver's own
     pixels, the far one's on cells of 3 x 3 pixels (its spot, with the Buie aureole, spans the whole
     receiver and spills). The field tracer takes one footprint per heliostat, the kernel tracer adds
-    its first-order change across the facet: where the spot spills, that changes the power on the
-    receiver by 5e-4 (the kernel tracer's is the reference tracer's to 1.5e-4, the field's 6e-4)."""
+    its first-order change across the heliostat: where the spot spills, that changes the power on the
+    receiver by up to 6e-4."""
     h = _measured_heliostat(position)
     receiver = flat_receiver([0.0, 0.0, 50.0], [0.0, 1.0, -0.5], size, size, (128, 128))
     optics = Optics(sun, slope_error=1e-3, dni=950.0, reflectivity=0.9)

@@ -21,8 +21,8 @@ the cell centre where its finest structure (sun.finest_scale) spans SMOOTH_CELLS
 (tests/physics/test_field.py: 70 dB against supersampling everywhere); the interpolation onto the
 receiver is separable, so a chunk's spots sum into the map as one matrix product. For one heliostat the field tracer
 and raytrace.trace(splat="kernel") agree to 2e-4 in power on the receiver (6e-4 for a far spot
-that spills, where the kernel tracer's first-order footprints are the reference tracer's to 1.5e-4)
-and 45-56 dB PSNR
+that spills: the kernel tracer adds the footprint's first-order change across the heliostat, the
+field tracer does not) and 45-56 dB PSNR
 (tests/physics/test_field.py); both blur by the slope error isotropically (see raytrace). Shading
 and blocking act on whole cells (their central rays); the sun's finite size (penumbra), the
 tower's shadow and blocking by facets of the same heliostat are neglected.
