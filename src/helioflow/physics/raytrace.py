@@ -20,10 +20,11 @@ Splatting:
             (sun shape convolved with the slope error, see sun.radial_density): flux density
             power * f(theta) * cos(gamma) / r^2 at the target, theta the angle off the central ray.
             Per sun position the central rays are deposited bilinearly and convolved (FFT) with the
-            pixel-averaged footprint of their mean ray and its first-order change with each ray's
-            direction and path (`splat_footprints`), so both modes estimate nearly the same image;
-            noise-free with far fewer rays. Slope error enters isotropically (2 sigma), which overestimates the
-            spread across the plane of incidence by 1/cos(incidence) at oblique incidence.
+            pixel-averaged footprint of the heliostat's reference ray (pivot to aim point) and its
+            first-order change with each ray's direction and path (`splat_footprints`), so both
+            modes estimate nearly the same image; noise-free with far fewer rays. Slope error enters
+            isotropically (2 sigma), which overestimates the spread across the plane of incidence by
+            1/cos(incidence) at oblique incidence.
 
 Pixels. Each splat averages the flux over pixels with its own filter: the bilinear deposit with a
 tent (TENT_VARIANCE = pixel^2/6 per axis), the kernel splat with the tent of its central rays'
@@ -433,9 +434,11 @@ def padded_canvas(target: Target) -> Target:
                    height=target.height * (rows + 2 * pad_r) / rows, resolution=(rows + 2 * pad_r, cols + 2 * pad_c))
 
 
-def footprint_expansion(reference: tuple[Tensor, Tensor], rays: tuple[Tensor, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
-    """The rays whose footprints expand each ray's footprint about the reference ray's to first
-    order (`splat_footprints`), and each ray's deviations from the reference ray.
+def footprint_expansion(reference: tuple[Tensor, Tensor],
+                        rays: tuple[Tensor, Tensor]) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """What expands each ray's footprint about the reference ray's to first order
+    (`splat_footprints`): the rays whose footprints give the central differences, their steps, and
+    each ray's deviations from the reference ray.
 
     The deviations: the ray's direction across the reference ray, along the target's right and
     (nearly) up axes (rad), and its path's excess over the reference's (m). The finite differences
@@ -450,19 +453,18 @@ def footprint_expansion(reference: tuple[Tensor, Tensor], rays: tuple[Tensor, Te
         units (7, 3) and paths (7,): the reference ray, then that ray moved by -/+ one step of each
         deviation in turn; steps (3,) (rad, rad, m); deviations (S, N, 3) of each ray.
     """
-    mean, mean_path = reference
+    ref, ref_path = reference
     unit, path = rays
-    right = normalize(mean.new_tensor([0.0, 1.0, 0.0]) - mean[1] * mean)  # across the reference ray
-    up = torch.linalg.cross(mean, right)
-    offset = unit - mean
-    deviations = torch.stack(((offset * right).sum(-1), (offset * up).sum(-1), path - mean_path), -1)
-    steps = torch.stack((mean.new_tensor(EXPANSION_ANGLE), mean.new_tensor(EXPANSION_ANGLE),
-                         EXPANSION_PATH * mean_path))
-    units, paths = [mean], [mean_path]
+    right = normalize(ref.new_tensor([0.0, 1.0, 0.0]) - ref[1] * ref)  # across the reference ray
+    up = torch.linalg.cross(ref, right)
+    offset = unit - ref
+    deviations = torch.stack(((offset * right).sum(-1), (offset * up).sum(-1), path - ref_path), -1)
+    steps = torch.stack((ref.new_tensor(EXPANSION_ANGLE), ref.new_tensor(EXPANSION_ANGLE), EXPANSION_PATH * ref_path))
+    units, paths = [ref], [ref_path]
     for j, axis in enumerate((right, up, None)):
         for sign in (-1.0, 1.0):
-            units.append(mean if axis is None else normalize(mean + sign * steps[j] * axis))
-            paths.append(mean_path + sign * steps[j] if axis is None else mean_path)
+            units.append(ref if axis is None else normalize(ref + sign * steps[j] * axis))
+            paths.append(ref_path + sign * steps[j] if axis is None else ref_path)
     return torch.stack(units), torch.stack(paths), steps, deviations
 
 
