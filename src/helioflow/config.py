@@ -286,7 +286,7 @@ def _check_field(config: dict, where: str) -> None:
                   allow_fit=True)
 
 
-_PAINT_KEYS = {"paint_dir", "heliostats", "resolution", "holdout", "targets"}
+_PAINT_KEYS = {"paint_dir", "heliostats", "resolution", "holdout", "targets", "centered"}
 _TRACE_KEYS = {"sun", "splits", "trace", "world_effects"}
 
 
@@ -383,7 +383,7 @@ def _check_images_dataset(config: dict, name: str, where: str) -> None:
     from helioflow.data.images import ERROR_KEYS, TIMESTAMP, check_files, check_ideal, csv_heliostats, read_table
 
     ds = config["datasets"][name]
-    extra = sorted(((_TRACE_KEYS - {"splits"}) | {"paint_dir", "targets"}) & set(ds))
+    extra = sorted(((_TRACE_KEYS - {"splits"}) | {"paint_dir", "targets", "centered"}) & set(ds))
     if extra:
         raise ConfigError(f"{where}: key {extra[0]!r} is not for own images; a dataset with source: images takes "
                           f"{', '.join(_IMAGES_TAKES)}")

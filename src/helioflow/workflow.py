@@ -175,7 +175,8 @@ def centroid_datasets(config: dict) -> list[str]:
 
 def import_paint_params(config: dict, dataset: str) -> dict:
     """Parameters of rule `import_paint`: the PAINT folder, image resolution (default
-    target.resolution), held-out measurement ids, the target filter and the nominal DNI."""
+    target.resolution), held-out measurement ids, the target filter, the nominal DNI and what becomes
+    of the measurements with only a centered image (`centered`, default place)."""
     ds = _dataset(config, dataset)
     if ds.get("source") != "paint":
         raise ConfigError(f"dataset {dataset!r} is not imported from PAINT (source: {ds.get('source')})")
@@ -187,6 +188,7 @@ def import_paint_params(config: dict, dataset: str) -> dict:
         "holdout": copy.deepcopy(ds.get("holdout") or []),
         "targets": ds.get("targets"),
         "dni_w_m2": config["dni_w_m2"],
+        "centered": ds.get("centered", "place"),
     }
 
 
@@ -201,12 +203,21 @@ def paint_heliostat_params(config: dict, heliostat: str) -> dict:
 
 def import_paint_inputs(config: dict, dataset: str) -> dict:
     """Files rule `import_paint` reads: tower-measurements.json, heliostat-properties.json and
-    every <id>-calibration-properties.json with its <id>-flux.png of the dataset's heliostat."""
+    every <id>-calibration-properties.json of the dataset's heliostat with the PNG the import reads:
+    its <id>-flux.png, or else its <id>-flux-centered.png (none with centered: skip, which leaves the
+    measurement out); with neither the <id>-flux.png, which snakemake then reports missing."""
+    from helioflow.data.paint import CALIBRATION_SUFFIX, measurement_pngs
+
     p = import_paint_params(config, dataset)
     files = _paint_files(p["paint_dir"], p["heliostat"])
     folder = Path(p["paint_dir"]) / p["heliostat"]
-    files["measurements"] = [str(f) for c in sorted(folder.glob("*-calibration-properties.json"))
-                             for f in (c, c.with_name(c.name.replace("-calibration-properties.json", "-flux.png")))]
+    files["measurements"] = []
+    for c in sorted(folder.glob(f"*{CALIBRATION_SUFFIX}")):
+        whole, centered = measurement_pngs(c)
+        if whole.is_file() or not centered.is_file():
+            files["measurements"] += [str(c), str(whole)]
+        elif p["centered"] == "place":
+            files["measurements"] += [str(c), str(centered)]
     return files
 
 
@@ -757,7 +768,7 @@ def leave_one_out_ids(dataset: dict) -> list[str]:
     from helioflow.data.paint import measurement_targets
 
     try:
-        targets = measurement_targets(dataset["paint_dir"], dataset["heliostat"])
+        targets = measurement_targets(dataset["paint_dir"], dataset["heliostat"], dataset.get("centered", "place"))
     except DataError as exc:
         raise ConfigError(f"holdout: leave_one_out needs the measurement ids: {exc}") from None
     keep = dataset.get("targets")

@@ -1,5 +1,5 @@
 """The plant's flux map (field.plant, rule plant_flux) on tests/data/paint's heliostats at the Jülich
-tower: AA39 calibrated, AA28, AA31 and AC43 ideal (AA23 has no geometry: not part of the field)."""
+tower: AA39 calibrated, AA28, AA31, AC43, AD37 and AU46 ideal (AA23 has no geometry: not part of the field)."""
 
 import json
 import math
@@ -57,7 +57,7 @@ def _compose(tmp_path, spec):
 
 
 def test_the_field_is_every_folder_with_geometry_and_the_map_leaves_out_what_does_not_reflect():
-    assert [f.name for f in plant_folders(PAINT)] == ["AA28", "AA31", "AA39", "AC43"]
+    assert [f.name for f in plant_folders(PAINT)] == ["AA28", "AA31", "AA39", "AC43", "AD37", "AU46"]
     effects, left_out = map_effects(_spec("m.pt")["effects"] | {"soiling": {}})
     assert effects["sunshape"] == {"kind": "pillbox"} and effects["slope_error"] == {"sigma_mrad": 1.0}
     assert effects["tracking"] == effects["canting"] == effects["surface"] == {}  # each heliostat's own
@@ -70,7 +70,7 @@ def test_a_fit_that_found_no_error_leaves_the_plant_map_as_designed(tmp_path):
     assert peak > 0 and np.abs(maps["ideal"] - maps["calibrated"]).max() < 1e-5 * peak  # the model's float32 pivot
     spot = metrics["design_points"]["noon"]["heliostats"]["AA39"]
     assert spot["shift_m"] < 1e-4 and spot["on_receiver_ideal_kw"] > 1.0  # ~8 m^2 of mirror, 1 kW/m^2
-    assert metrics["heliostats"] == 4 and metrics["calibrated"] == ["AA39"]
+    assert metrics["heliostats"] == 6 and metrics["calibrated"] == ["AA39"]
     assert set(metrics["left_out"]) == {"camera"} and out[1].stat().st_size > 0
 
 

@@ -32,13 +32,14 @@ def _config(group_size: int) -> dict:
 
 def test_a_plants_heliostats_go_in_groups_of_group_size_in_the_entrys_order():
     config = expand_config(validate_config(_config(2)))
-    assert plant_batches(config) == {"jul_g0": ["jul_AA31", "jul_AA39"], "jul_g1": ["jul_AC43"]}
+    assert plant_batches(config) == {"jul_g0": ["jul_AA31", "jul_AA39"], "jul_g1": ["jul_AC43", "jul_AD37"],
+                                     "jul_g2": ["jul_AU46"]}
     assert plant_batches(expand_config(validate_config(_config(1)))) == {}  # the default: one job per heliostat
-    job = batch_job(config, "diagnose", "jul_g1")
-    assert job["logs"] == ["results/tiny/logs/diagnose/jul_AC43.log"]
-    assert "results/tiny/plant/shared.json" in job["input"] and "results/tiny/diagnosis/jul_AC43.json" in job["output"]
-    with pytest.raises(ConfigError, match="no batch 'jul_g2'; batches: jul_g0, jul_g1"):
-        batch_job(config, "train", "jul_g2")
+    job = batch_job(config, "diagnose", "jul_g2")
+    assert job["logs"] == ["results/tiny/logs/diagnose/jul_AU46.log"]
+    assert "results/tiny/plant/shared.json" in job["input"] and "results/tiny/diagnosis/jul_AU46.json" in job["output"]
+    with pytest.raises(ConfigError, match="no batch 'jul_g3'; batches: jul_g0, jul_g1, jul_g2"):
+        batch_job(config, "train", "jul_g3")
 
 
 def _commands(output: str) -> set[tuple[tuple[str, ...], str]]:

@@ -25,7 +25,7 @@ from helioflow.workflow import (
 
 REPO = Path(__file__).resolve().parents[2]
 PAINT = REPO / "tests" / "data" / "paint"
-MULTI_FOCUS = ["270398", "275564", "extra1", "extra3"]
+MULTI_FOCUS = ["202558", "205363", "218385", "270398", "275564", "extra1", "extra3"]  # 3 centered-only
 
 
 def _config(paint_dir=PAINT, **aa39) -> dict:
@@ -46,7 +46,11 @@ def test_leave_one_out_makes_one_dataset_per_image_each_holding_that_one_out():
     assert leave_one_out_groups(config) == {"aa39": folds}
     every = expand_leave_one_out(_config())  # no target filter: every image of the folder
     assert leave_one_out_groups(every)["aa39"] == [f"aa39_loo_{i}" for i in
-                                                   ["270398", "271633", "275564", "extra1", "extra2", "extra3"]]
+                                                   ["202558", "205363", "209075", "218385", "223788", "246955",
+                                                    "270398", "271633", "275564", "extra1", "extra2", "extra3"]]
+    skip = expand_leave_one_out(_config(centered="skip"))  # the whole-target images alone
+    assert leave_one_out_groups(skip)["aa39"] == [f"aa39_loo_{i}" for i in
+                                                  ["270398", "271633", "275564", "extra1", "extra2", "extra3"]]
 
 
 def test_a_config_without_leave_one_out_is_unchanged():
@@ -65,7 +69,7 @@ def test_rule_inputs_list_every_fold_per_network_and_the_report_takes_the_summar
     assert set(inputs) == {"datasets", "model_nearest", "metrics_nearest", "model_drt", "metrics_drt"}
     assert report_inputs(config)["leave_one_out"] == [f"{r}/figures/leave_one_out/aa39.png",
                                                       f"{r}/leave_one_out/aa39.csv"]
-    assert centroid_datasets(config) == ["aa39_loo_270398"]  # the folds hold the same images: one check
+    assert centroid_datasets(config) == ["aa39_loo_202558"]  # the folds hold the same images: one check
     with pytest.raises(ConfigError, match="no leave-one-out dataset 'scan'; leave-one-out datasets: aa39"):
         leave_one_out_inputs(config, "scan")
 
@@ -106,7 +110,8 @@ def test_the_paint_aa39_variant_validates_over_the_default_config_and_runs_folds
     assert list(config["networks"]) == ["nearest", "raytrace", "drt"]
     groups = leave_one_out_groups(config)
     assert groups == {"aa39": [f"aa39_loo_{i}" for i in MULTI_FOCUS],
-                      "aa39_lower": ["aa39_lower_loo_271633", "aa39_lower_loo_extra2"]}
+                      "aa39_lower": [f"aa39_lower_loo_{i}" for i in ["209075", "223788", "246955", "271633",
+                                                                       "extra2"]]}
     assert set(config["datasets"]) == {f for folds in groups.values() for f in folds}
     assert all(ds["paint_dir"] == "tests/data/paint" for ds in config["datasets"].values())
 

@@ -44,6 +44,8 @@ def test_a_paint_dataset_validates_and_synthetic_ones_default_to_source_syntheti
     (lambda c: c["datasets"]["scan"].pop("trace"), "datasets.scan: missing key 'trace'"),
     (lambda c: c["datasets"]["aa39"].update(heliostat="small"), "'small' is also a configured heliostat"),
     (lambda c: c["datasets"]["aa39"].update(resolution=[64]), "datasets.aa39.resolution = [64]"),
+    (lambda c: c["datasets"]["aa39"].update(centered="shape"), "datasets.aa39.centered = 'shape'"),
+    (lambda c: c["datasets"]["scan"].update(centered="skip"), "key 'centered' is for PAINT datasets"),
     (lambda c: c["datasets"].update(b={"source": "paint", "paint_dir": "elsewhere", "heliostat": "AA39"}),
      "one heliostat, one PAINT directory"),
 ])
@@ -58,13 +60,16 @@ def test_import_params_default_the_resolution_to_the_targets_and_inputs_list_the
     config = validate_config(_config())
     params = import_paint_params(config, "aa39")
     assert params == {"dataset": "aa39", "paint_dir": str(PAINT), "heliostat": "AA39", "resolution": [16, 16],
-                      "holdout": ["extra1"], "targets": None, "dni_w_m2": config["dni_w_m2"]}
+                      "holdout": ["extra1"], "targets": None, "dni_w_m2": config["dni_w_m2"], "centered": "place"}
     wide = validate_config(_config(resolution=[64, 64]))
     assert import_paint_params(wide, "aa39")["resolution"] == [64, 64]
     assert paint_heliostat_params(config, "AA39") == {"paint_dir": str(PAINT), "heliostat": "AA39"}
     files = import_paint_inputs(config, "aa39")
     assert files["properties"] == str(PAINT / "AA39" / "heliostat-properties.json")
-    assert len(files["measurements"]) == 12 and all(Path(f).is_file() for f in files["measurements"])
+    assert len(files["measurements"]) == 24 and all(Path(f).is_file() for f in files["measurements"])
+    assert sum(f.endswith("-flux-centered.png") for f in files["measurements"]) == 6  # the centered-only ones
+    skip = import_paint_inputs(validate_config(_config(centered="skip")), "aa39")["measurements"]
+    assert len(skip) == 12 and not any(f.endswith("-flux-centered.png") for f in skip)
     with pytest.raises(ConfigError, match="not imported from PAINT"):
         import_paint_params(config, "scan")
     assert report_inputs(config)["paint_centroids"] == ["results/tiny/paint/aa39_centroids.json"]

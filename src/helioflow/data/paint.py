@@ -25,15 +25,31 @@ Conventions (checked against the data; see tests/data/test_paint.py):
 - Images: ``<id>-flux.png`` spans the whole target (the UTIS rectified image): row 0 is the upper
   edge, column 0 the ``upper_left``/``lower_left`` side, i.e. rows top-down and columns to the
   right as seen from the field, as helioflow's images. Its flux-weighted centroid matches PAINT's
-  UTIS centroid to 1-4 cm (UTIS counts pixel corners, not centres: half a pixel). The
-  ``-flux-centered`` image is shifted onto the spot and so loses where the spot is; it is not
-  used. Grey levels are divided by 255 (65535 for 16-bit): each PNG is normalised to its own
-  peak, so images are relative flux, not W/m^2, and intensities across images are not comparable
-  (attribute ``per_image_normalised``; the physics models fit them by shape). The attribute
-  ``dni_w_m2`` is the nominal DNI a model traces them with (config ``dni_w_m2``): PAINT records
-  none, and on relative images it sets only the unit of the traced flux.
-  Images are resampled to the configured resolution by exact area averaging over the same target
-  extent, so pixel centres keep their target coordinates (nothing shifts).
+  UTIS centroid to 1-4 cm (UTIS counts pixel corners, not centres: half a pixel). A measurement
+  with a ``-flux.png`` is read from it alone; its ``-flux-centered.png`` is not used. Grey levels
+  are divided by 255 (65535 for 16-bit): each PNG is normalised to its own peak, so images are
+  relative flux, not W/m^2, and intensities across images are not comparable (attribute
+  ``per_image_normalised``; the physics models fit them by shape). The attribute ``dni_w_m2`` is
+  the nominal DNI a model traces them with (config ``dni_w_m2``): PAINT records none, and on
+  relative images it sets only the unit of the traced flux. Images are resampled to the configured
+  resolution by exact area averaging over the same target extent, so pixel centres keep their
+  target coordinates (nothing shifts).
+- Centered measurements: one with only ``<id>-flux-centered.png`` (PAINT's 2025 release) is placed
+  on its target (option ``centered: place``, the default; ``skip`` leaves such measurements out).
+  That image does not span the target: it spans a square window of CENTERED_WINDOW_M on a side, the
+  same on every target (64 px: 6.095 m, pixel centres 6 m apart edge to edge: 95 mm pixels, against
+  34 x 28 mm of the Juelich targets' 256 x 256 whole image), the spot's flux-weighted centroid at
+  its middle. Fitted to the whole images of the measurements that have both, the window's side is
+  6.095 m high, 6.103 m wide for AA23's 64 px centered images and 6.031, 6.039 m for the 2026
+  release's 256 px ones; spanning the whole target instead, as PAINT's README reads, puts 7-28 % of
+  the flux in the wrong place. The image is shifted (subpixel, exact area overlap: flux density x
+  area conserved) so that its flux-weighted centroid lands on the UTIS centroid moved by half a
+  UTIS pixel right and down (``utis_on_target``: UTIS counts the pixel corners of its 256 x 256
+  image; without the half pixel the spots land 17-32 mm off); flux shifted beyond the target's
+  edges is lost (at most 0.02 % on the sample data). So placed, the centered images of the
+  measurements with both files match their whole images at 64 x 64 to 1-10 mm (centroid) and
+  0.2-1.5 % misplaced flux (one outlier, AA23's 216331: 18 %; docs/data.md). Extras ``centered``
+  (N,) bool say which images were placed.
 - Heliostat: PAINT facets are given for the mirror lying flat, facing up, in (e, n, u); mounted,
   the mirror faces south at rest (``initial_orientation`` [0, -1, 0]), which is the rotation about
   east taking (e, n, u) to (east, up, south) = helioflow's heliostat frame (right, up, normal), as
@@ -81,8 +97,9 @@ from helioflow.data.hdf5 import CalibrationDataset, write_dataset
 from helioflow.data.surfaces import write_heliostat
 from helioflow.data.synthetic import CONVENTIONS, config_hash
 from helioflow.errors import DataError, HelioflowError
-from helioflow.physics.geometry import wgs84_to_enu
+from helioflow.physics.geometry import plane_axes, wgs84_to_enu
 from helioflow.physics.heliostat import TRACKING_PARAMETERS, Heliostat, canting_focal_distance
+from helioflow.physics.target import pixel_centroid
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +108,11 @@ PROPERTIES_FILE = "heliostat-properties.json"
 CALIBRATION_SUFFIX = "-calibration-properties.json"
 CORNERS = ("upper_left", "upper_right", "lower_left", "lower_right")
 CONTROL_POINTS = 6  # B-spline control points per facet side of the (zero) surface deformation
+CENTERED_MODES = ("place", "skip")  # option `centered`: place centered-only measurements, or leave them out
+# side (m) of the square window a <id>-flux-centered.png spans, by its pixels per side (module docstring):
+# 64 (the 2025 release) 6 m between the outer pixel centres, 6 * 64 / 63; 256 (2026) as fitted to the whole images
+CENTERED_WINDOW_M = {64: 6.0 * 64 / 63, 256: 6.035}
+UTIS_PIXELS = 256  # pixels per side of the UTIS image whose pixel corners PAINT's UTIS centroid counts
 
 
 @dataclass(frozen=True)
@@ -109,7 +131,8 @@ class PlaneTarget:
 
 @dataclass(frozen=True)
 class Measurement:
-    """One calibration measurement: sun position (deg), target, PAINT's spot centroids (ENU m)."""
+    """One calibration measurement: sun position (deg), target, PAINT's spot centroids (ENU m), the PNG
+    the import reads and whether it is the centered one (``<id>-flux-centered.png``, no whole image)."""
 
     id: str
     azimuth_deg: float
@@ -118,7 +141,8 @@ class Measurement:
     focal_spot_utis_m: np.ndarray
     focal_spot_helios_m: np.ndarray
     motor_position: tuple[float, float]
-    flux_png: Path
+    image_png: Path
+    centered: bool = False
 
 
 def read_json(path: Path) -> dict:
@@ -223,8 +247,30 @@ def plane_from_corners(name: str, corners: dict[str, np.ndarray], normal_hint: n
     return PlaneTarget(name, center, normal, float(np.linalg.norm(right)), float(np.linalg.norm(up)))
 
 
+def measurement_pngs(path: Path) -> tuple[Path, Path]:
+    """(``<id>-flux.png``, ``<id>-flux-centered.png``) beside the ``<id>-calibration-properties.json``
+    `path`, whether they exist or not."""
+    mid = path.name[: -len(CALIBRATION_SUFFIX)]
+    return path.with_name(f"{mid}-flux.png"), path.with_name(f"{mid}-flux-centered.png")
+
+
+def centered_only(path: Path) -> bool:
+    """Whether the measurement `path` (its calibration-properties.json) has only its centered PNG;
+    DataError naming the files when it has neither."""
+    whole, centered = measurement_pngs(path)
+    if whole.is_file():
+        return False
+    if centered.is_file():
+        return True
+    raise DataError(f"{whole} does not exist, nor does {centered.name}: each <id>{CALIBRATION_SUFFIX} needs its "
+                    "<id>-flux.png (the whole target) or its <id>-flux-centered.png (the spot, placed by the UTIS "
+                    "centroid)")
+
+
 def read_measurement(path: Path, tower: Tower) -> Measurement:
-    """One ``<id>-calibration-properties.json`` (and the path of its ``<id>-flux.png``)."""
+    """One ``<id>-calibration-properties.json`` and the path of the PNG to read: ``<id>-flux.png``, or
+    ``<id>-flux-centered.png`` when that is the only one (then its UTIS centroid is required)."""
+    centered = centered_only(path)
     data = read_json(path)
     azimuth = float(field(data, path, "sun_azimuth"))
     elevation = float(field(data, path, "sun_elevation"))
@@ -235,17 +281,24 @@ def read_measurement(path: Path, tower: Tower) -> Measurement:
         raise DataError(f"{path}: sun_azimuth = {azimuth:g} deg: expected degrees in [-180, 360]")
     target = field(data, path, "target_name", "string")
     tower.target(target, path)
-    mid = path.name[: -len(CALIBRATION_SUFFIX)]
+    try:
+        utis = field(data, path, "focal_spot.UTIS", "vec3")
+    except DataError as exc:
+        if not centered:
+            raise
+        raise DataError(f"{exc}: {measurement_pngs(path)[1].name}, the only image of this measurement, is placed "
+                        "on the target by it") from None
     return Measurement(
-        id=mid,
+        id=path.name[: -len(CALIBRATION_SUFFIX)],
         azimuth_deg=(azimuth + 180.0) % 360.0 - 180.0,
         elevation_deg=elevation,
         target_name=target,
-        focal_spot_utis_m=tower.enu(field(data, path, "focal_spot.UTIS", "vec3")),
+        focal_spot_utis_m=tower.enu(utis),
         focal_spot_helios_m=tower.enu(field(data, path, "focal_spot.HeliOS", "vec3")),
         motor_position=(float(field(data, path, "motor_position.axis_1_motor_position")),
                         float(field(data, path, "motor_position.axis_2_motor_position"))),
-        flux_png=path.with_name(f"{mid}-flux.png"),
+        image_png=measurement_pngs(path)[centered],
+        centered=centered,
     )
 
 
@@ -255,6 +308,19 @@ def read_flux_png(path: Path) -> np.ndarray:
         raise DataError(f"{path} does not exist (each <id>{CALIBRATION_SUFFIX} needs its <id>-flux.png)")
     return read_grey_png(path, str(path), "remove this measurement (its calibration-properties.json and PNG) "
                                           "or repair the image")[0]
+
+
+def read_centered_png(path: Path) -> np.ndarray:
+    """(n, n) float64 grey levels in [0, 1] of a PAINT ``<id>-flux-centered.png``, n a key of
+    CENTERED_WINDOW_M; DataError if corrupt or of another size."""
+    image = read_grey_png(path, str(path), "remove this measurement (its calibration-properties.json and PNG) "
+                                           "or repair the image")[0]
+    n = image.shape[0]
+    if image.shape[1] != n or n not in CENTERED_WINDOW_M:
+        sizes = " or ".join(f"{k} x {k}" for k in CENTERED_WINDOW_M)
+        raise DataError(f"{path} is {image.shape[0]} x {image.shape[1]} pixels; expected a centered PAINT image "
+                        f"of {sizes} pixels (the window whose size helioflow knows)")
+    return image
 
 
 PNG_COLOUR_TYPES = {0: "grey", 2: "RGB", 3: "palette", 4: "grey + alpha", 6: "RGBA"}  # the IHDR's colour type
@@ -317,13 +383,43 @@ def resample_area(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return rows @ image @ cols.T
 
 
-def _overlap(n_in: int, n_out: int) -> np.ndarray:
-    """(n_out, n_in) weights: fraction of output pixel i covered by input pixel j (rows sum to 1)."""
-    e_in = np.arange(n_in + 1) / n_in
+def _overlap(n_in: int, n_out: int, start: float = 0.0, span: float = 1.0) -> np.ndarray:
+    """(n_out, n_in) weights: fraction of output pixel i covered by input pixel j, the output spanning
+    [0, 1] and the input [start, start + span] (fractions of the output's extent); rows sum to 1
+    where the input covers the output pixel."""
+    e_in = start + span * np.arange(n_in + 1) / n_in
     e_out = np.arange(n_out + 1) / n_out
     lo = np.maximum(e_out[:-1, None], e_in[None, :-1])
     hi = np.minimum(e_out[1:, None], e_in[None, 1:])
     return np.clip(hi - lo, 0.0, None) * n_out
+
+
+def utis_on_target(m: Measurement, plane: PlaneTarget) -> np.ndarray:
+    """(2,) PAINT's UTIS centroid of `m` in the target coordinates of `plane` (u right, v up, m from its
+    centre; ``geometry.plane_axes``), moved by half a UTIS pixel right and down: UTIS counts the pixel
+    corners of its UTIS_PIXELS-square image, helioflow's centroids the pixel centres (module docstring)."""
+    right, up = (a.numpy() for a in plane_axes(torch.as_tensor(plane.normal, dtype=torch.float64)))
+    d = np.asarray(m.focal_spot_utis_m) - plane.center
+    return np.array([d @ right + 0.5 * plane.width / UTIS_PIXELS, d @ up - 0.5 * plane.height / UTIS_PIXELS])
+
+
+def place_centered(image: np.ndarray, centroid_uv: np.ndarray, plane: PlaneTarget,
+                   shape: tuple[int, int]) -> np.ndarray:
+    """(n, n) centered image -> (rows, cols) = `shape` image of the whole target `plane` with the flux-weighted
+    centroid of `image` at `centroid_uv` (2,) (u right, v up, m from the target's centre).
+
+    `image` spans a square window of CENTERED_WINDOW_M[n] m on a side, its axes along the target's
+    right and up; it is shifted by any fraction of a pixel and area-averaged onto the target's grid by
+    exact overlap, so flux density x area is kept, except what lands beyond the target's edges: lost.
+    """
+    n_rows, n_cols = image.shape
+    side = CENTERED_WINDOW_M[n_rows]
+    row, col = pixel_centroid(torch.as_tensor(image)).numpy()  # from the centre of pixel (0, 0)
+    # the window's upper-left corner on the target, as fractions of its height (down) and width (right)
+    top = (0.5 * plane.height - centroid_uv[1] - (row + 0.5) * side / n_rows) / plane.height
+    left = (0.5 * plane.width + centroid_uv[0] - (col + 0.5) * side / n_cols) / plane.width
+    return (_overlap(n_rows, shape[0], top, side / plane.height) @ image
+            @ _overlap(n_cols, shape[1], left, side / plane.width).T)
 
 
 def heliostat_folder(paint_dir: Path, heliostat: str) -> Path:
@@ -420,24 +516,33 @@ def _sort_key(mid: str):
     return (not mid.isdigit(), int(mid) if mid.isdigit() else 0, mid)
 
 
-def measurement_targets(paint_dir: str | os.PathLike, heliostat: str) -> dict[str, str]:
+def measurement_targets(paint_dir: str | os.PathLike, heliostat: str, centered: str = "place") -> dict[str, str]:
     """{measurement id: target name} of a heliostat folder (numeric ids first, in order), read from
     each <id>-calibration-properties.json alone: what splitting a dataset into folds needs
-    (`helioflow.workflow.expand_leave_one_out`); the import checks everything else."""
+    (`helioflow.workflow.expand_leave_one_out`); the import checks everything else. `centered`:
+    "skip" leaves out the measurements without an <id>-flux.png."""
     folder = heliostat_folder(Path(paint_dir), heliostat)
     paths = sorted(folder.glob(f"*{CALIBRATION_SUFFIX}"), key=lambda p: _sort_key(p.name[: -len(CALIBRATION_SUFFIX)]))
+    paths = [p for p in paths if centered == "place" or measurement_pngs(p)[0].is_file()]
     return {p.name[: -len(CALIBRATION_SUFFIX)]: field(read_json(p), p, "target_name", "string") for p in paths}
 
 
-def read_measurements(folder: Path, tower: Tower, targets: list[str] | None) -> list[Measurement]:
+def read_measurements(folder: Path, tower: Tower, targets: list[str] | None,
+                      centered: str = "place") -> list[Measurement]:
     """Every measurement of a heliostat folder (numeric ids first, in order), optionally only
-    those on `targets`; DataError if there are none."""
+    those on `targets`; with `centered` "skip" without those that have only their centered PNG
+    (not read at all); DataError if there are none."""
     paths = sorted(folder.glob(f"*{CALIBRATION_SUFFIX}"),
                    key=lambda p: _sort_key(p.name[: -len(CALIBRATION_SUFFIX)]))
     if not paths:
         geometry = ("its heliostat-properties.json is there: import the geometry alone (--heliostat-output)"
                     if (folder / PROPERTIES_FILE).is_file() else "and no heliostat-properties.json either")
         raise DataError(f"{folder} has no measurements (no *{CALIBRATION_SUFFIX}); {geometry}")
+    if centered == "skip":
+        paths = [p for p in paths if not centered_only(p)]
+        if not paths:
+            raise DataError(f"{folder}: every measurement has only its <id>-flux-centered.png, which centered: skip "
+                            "leaves out; import them with centered: place")
     measurements = [read_measurement(p, tower) for p in paths]
     if targets is not None:
         unknown = sorted(set(targets) - set(tower.planar_targets()))
@@ -516,6 +621,7 @@ def import_paint(
     targets: list[str] | None = None,
     dataset: str | None = None,
     dni_w_m2: float = 1000.0,
+    centered: str = "place",
 ) -> CalibrationDataset | None:
     """Import one PAINT heliostat folder (conventions in the module docstring).
 
@@ -533,20 +639,24 @@ def import_paint(
         targets: import only measurements on these targets; None = all.
         dataset: the dataset's name (attribute); default the heliostat's.
         dni_w_m2: the nominal DNI (W/m^2) of the dataset's attribute (module docstring: Images).
+        centered: "place" the measurements that have only their centered PNG on the target by their
+            UTIS centroid, or "skip" them (module docstring: Centered measurements).
 
     Returns:
         The dataset written to `dataset_path`, or None when only the geometry was asked for.
     """
     if dataset_path is None and heliostat_path is None:
         raise HelioflowError("import_paint: nothing to write; give a dataset path, a heliostat path or both")
+    if centered not in CENTERED_MODES:
+        raise HelioflowError(f"import_paint: centered = {centered!r}; expected one of {', '.join(CENTERED_MODES)}")
     paint_dir = Path(paint_dir)
     tower = Tower(paint_dir / TOWER_FILE)
     folder = heliostat_folder(paint_dir, heliostat)
-    measurements = read_measurements(folder, tower, targets) if dataset_path is not None else []
+    measurements = read_measurements(folder, tower, targets, centered) if dataset_path is not None else []
     geometry, source = read_heliostat_properties(folder / PROPERTIES_FILE, tower)
     ds = None
     if dataset_path is not None:
-        spec = {"paint_dir": str(paint_dir), "targets": targets, "dni_w_m2": float(dni_w_m2)}
+        spec = {"paint_dir": str(paint_dir), "targets": targets, "dni_w_m2": float(dni_w_m2), "centered": centered}
         ds = build_dataset(measurements, tower, geometry, tuple(resolution), holdout, folder,
                            dataset or heliostat, heliostat, spec)
         ds.attrs["neighbours_enu_m"] = neighbour_positions(paint_dir, tower, heliostat, geometry.position.numpy())
@@ -598,10 +708,14 @@ def relative_flux_attrs(geometry: Heliostat, target: PlaneTarget, dni_w_m2: floa
 def build_dataset(measurements: list[Measurement], tower: Tower, geometry: Heliostat,
                   resolution: tuple[int, int], holdout: list[str], folder: Path, dataset: str, heliostat: str,
                   spec: dict) -> CalibrationDataset:
-    """The CalibrationDataset of a heliostat's measurements (images resampled to `resolution`)."""
-    raw = [read_flux_png(m.flux_png) for m in measurements]
-    images = np.stack([resample_area(img, resolution) for img in raw]).astype(np.float32)
+    """The CalibrationDataset of a heliostat's measurements (images resampled to `resolution`, centered
+    ones placed on their targets)."""
     planes = [tower.target(m.target_name, folder) for m in measurements]
+    raw = [read_centered_png(m.image_png) if m.centered else read_flux_png(m.image_png) for m in measurements]
+    images = np.stack([place_centered(img, utis_on_target(m, p), p, resolution) if m.centered
+                       else resample_area(img, resolution)
+                       for img, m, p in zip(raw, measurements, planes)]).astype(np.float32)
+    whole = [img.shape for img, m in zip(raw, measurements) if not m.centered]  # source_image_shape: theirs
     names = [p.name for p in planes]
     main = max(sorted(set(names)), key=names.count)
     ref = planes[names.index(main)]
@@ -619,7 +733,8 @@ def build_dataset(measurements: list[Measurement], tower: Tower, geometry: Helio
         "paint_dir": spec["paint_dir"],
         "units": {"images": "relative (PNG grey level / 255, each image normalised to its peak)",
                   "angles": "deg", "lengths": "m"},
-        **relative_flux_attrs(geometry, ref, spec["dni_w_m2"], raw[0].shape, [m.id for m in measurements], params),
+        **relative_flux_attrs(geometry, ref, spec["dni_w_m2"], whole[0] if whole else (UTIS_PIXELS, UTIS_PIXELS),
+                              [m.id for m in measurements], params),
         "target_name": main,
         "targets": sorted(set(names)),
         "mixed_targets": mixed,
@@ -634,6 +749,7 @@ def build_dataset(measurements: list[Measurement], tower: Tower, geometry: Helio
         "focal_spot_enu_m": np.stack([m.focal_spot_utis_m for m in measurements]),
         "focal_spot_helios_enu_m": np.stack([m.focal_spot_helios_m for m in measurements]),
         "motor_position": np.array([m.motor_position for m in measurements]),
+        "centered": np.array([m.centered for m in measurements]),
     }
     return CalibrationDataset(
         images=images,
