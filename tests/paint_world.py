@@ -18,6 +18,10 @@ Effects (`world(...)` keywords), with the magnitudes a real heliostat has:
                                       a 64 x 64 image of the target (4x that of the 256 x 256 PNG),
                                       applied to each ray's landing point (a photon's point-spread:
                                       the counting noise stays white, as a sensor's is)
+    counted_blur_px=b           a blur after the counting (std in pixels of a 64 x 64 image), as a
+                                resampled image has: the counting noise is smooth over a few pixels
+    rectified=True              the image resampled as a rectification does (bilinear, on a grid
+                                turned by 17 mrad, stretched by 1.3 %, shifted by a fraction of a pixel)
     focal_length_m=f            curved facets: each a paraboloid of this focal length (the model's
                                 facets are flat)
     soiling=g                   soiling that grows down the mirror: the reflectance falls linearly from
@@ -37,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 from PIL import Image
+from scipy.ndimage import gaussian_filter, map_coordinates
 
 from helioflow.data.paint import Tower
 from helioflow.physics.geometry import wgs84_to_enu
@@ -58,6 +63,8 @@ class World:
     canting_mrad: np.ndarray | None = None
     bump: tuple[int, float, float] | None = None
     camera: tuple[float, float] = (0.0, 0.0)
+    counted_blur_px: float = 0.0
+    rectified: bool = False
     focal_length_m: float | None = None
     soiling: float = 0.0
     neighbour_enu_m: tuple[float, float, float] | None = None
@@ -278,9 +285,19 @@ def neighbour_hits(scene: Scene, sun: np.ndarray, points: np.ndarray, direction:
     return (t > 0) & (np.abs(local[:, 0]) <= half_w) & (np.abs(local[:, 1]) <= half_h)
 
 
-def camera(image: np.ndarray, background: float) -> np.ndarray:
-    """The camera's background, a share of the peak (its blur acts on each photon in trace_image)."""
-    return image + background * image.max()
+def camera(image: np.ndarray, world: World) -> np.ndarray:
+    """What reaches the file of the counted image (PNG_SIDE, PNG_SIDE): the blur after the counting
+    and the rectification's resampling (World), then the background, a share of the peak (the
+    camera's own blur acts on each photon in trace_image)."""
+    if world.counted_blur_px > 0:
+        image = gaussian_filter(image, world.counted_blur_px * PNG_SIDE / 64, mode="constant")
+    if world.rectified:
+        y, x = np.mgrid[:PNG_SIDE, :PNG_SIDE].astype(float) - PNG_SIDE / 2
+        turn, stretch = 0.017, 1.013
+        rows = stretch * (math.cos(turn) * y - math.sin(turn) * x) + PNG_SIDE / 2 + 0.37
+        cols = stretch * (math.sin(turn) * y + math.cos(turn) * x) + PNG_SIDE / 2 + 0.21
+        image = map_coordinates(image, [rows, cols], order=1)
+    return image + world.camera[0] * image.max()
 
 
 def enu_to_wgs84(tower: Tower, enu: np.ndarray) -> list[float]:
@@ -322,7 +339,7 @@ def write_paint_folder(folder: Path, world: World, n_images: int = 40, rays: int
     rng = np.random.default_rng(seed)
     suns = calibration_suns(n_images, seed)
     for i, (az, el) in enumerate(suns):
-        flux = camera(trace_image(scene, world, az, el, rays, rng), world.camera[0])
+        flux = camera(trace_image(scene, world, az, el, rays, rng), world)
         png = np.round(flux / flux.max() * 255).astype(np.uint8)
         mid = str(100_000 + i)
         Image.fromarray(png, mode="L").save(folder / name / f"{mid}-flux.png")

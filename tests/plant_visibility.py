@@ -58,7 +58,7 @@ def visibility(world, kind: str, offset, n_images: int, rays: int, seed: int) ->
     scene.position = scene.position + np.asarray(offset, float)
     out = []
     for az, el in calibration_suns(n_images, seed):
-        a, b = (pixels(camera(trace_image(scene, w, az, el, rays, np.random.default_rng(seed)), w.camera[0]))
+        a, b = (pixels(camera(trace_image(scene, w, az, el, rays, np.random.default_rng(seed)), w))
                 for w in (world, without(world, kind)))
         out.append(0.5 * np.abs(a - b).sum())
     return float(np.mean(out))

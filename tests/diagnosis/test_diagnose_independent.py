@@ -36,6 +36,8 @@ CASES = {  # name: (world, the registry effects the diagnosis must name; None: a
     "focusing facets": (World(focal_length_m=100.0), {"surface"}),  # curved facets, believed flat
     "camera": (World(camera=(0.03, 1.5)), {"camera"}),
     "camera blur": (World(camera=(0.0, 1.5)), {"camera"}),
+    "camera blur after the counting": (World(counted_blur_px=1.5), {"camera"}),  # the noise smooth over pixels
+    "none, rectified": (World(rectified=True), set()),  # resampled: noise correlated, nothing to find
     "canting + tracking": (World(canting_mrad=_tilts[1], tracking_mrad=(1.0, 0.8)),
                            {"canting", "tracking"}),
     "surface + camera": (World(bump=(2, 1.0, 0.25), camera=(0.03, 1.5)), {"surface", "camera"}),

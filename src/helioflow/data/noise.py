@@ -9,11 +9,25 @@ measured as such, and 8-bit quantisation adds its own share wherever the image i
 Robust per level (median of squares: the spot's edges, where the operator sees some signal, do not
 inflate it), and piecewise linear between the levels (`NoiseModel`).
 
-What it does not count: noise correlated over several pixels (a blur after the noise) is
-underestimated by a pixel-scale operator. What it counts too much: the operator sees a spot's own
+What it does not count: noise correlated over several pixels (a blur after the counting, a
+resampled or rectified image) is underestimated by a pixel-scale operator, and under 8-bit
+quantisation it is not seen at all: noise blurred over one pixel of a 64 x 64 image keeps 1/100 of
+its variance in the operator's response, less than the quantisation's. `residual_noise` measures
+that noise where it is: in the residual of a model, at the spatial frequencies its spot lacks. What it counts too much: the operator sees a spot's own
 fourth derivative, about peak / (6 sigma^4) for a Gaussian spot of sigma pixels (a floor of ~1e-4
 misplaced flux for noise-free spots of 3 px); read in a residual (measured - predicted, with the
 prediction's levels: `measure_noise(residual, signal=prediction)`) the spot is gone.
+
+**Correlated noise** (`residual_noise`): the residual measured - predicted holds the noise and
+whatever the model misses. What it misses is a part of the spot, so its power lies at the spatial
+frequencies the predicted spot has; at the frequencies where the prediction's power is below
+BAND_SHARE of the residual's, the residual is noise. There its mean periodogram is fitted by the
+spectrum of white noise plus Gaussian-correlated noise, W + C exp(-4 pi^2 b^2 |f|^2) (b: the
+correlation length, px; W: the white share, e.g. quantisation), and the fitted spectrum summed
+over every frequency is the noise's variance (Parseval): its low frequencies, where the spot
+hides it, are the model's extrapolation. How that variance is spread over the image (more where
+the signal is: photon noise) is read in the residual filtered to the same band, per level of the
+prediction.
 
 Used by the diagnosis' noise floor (diagnosis/noise.py) and the fits' uncertainty
 (models/uncertainty.py).
@@ -21,16 +35,23 @@ Used by the diagnosis' noise floor (diagnosis/noise.py) and the fits' uncertaint
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import torch
+from scipy.optimize import minimize, nnls
+from scipy.stats import chi2
 from torch import Tensor
 
 OPERATOR = torch.tensor([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]])  # gain 36 on white noise
 LEVEL_BINS = 16  # equal-count bins of the local signal level (pixels above zero)
 MEDIAN_CHI2_1 = 0.45494  # median of a chi-square variable with one degree of freedom
 ZERO = 1e-12  # a level at or below this (relative to the images' peak) is an exactly dark pixel
+BAND_SHARE = 0.01  # frequencies where the prediction holds less than this share of the residual's power are noise
+CORRELATION_PX = np.concatenate(([0.0], np.geomspace(0.2, 6.0, 48)))  # correlation lengths tried (px)
+SPECTRUM_SIGNIFICANCE = 1e-3  # a correlated share is read in the spectrum only beyond this chance of a white one's
+MIN_BAND = 16  # fewer noise-dominated frequencies than this: the residual's noise is not measured
 
 
 @dataclass(frozen=True)
@@ -45,11 +66,17 @@ class NoiseModel:
         levels: (K,) signal levels (image units), increasing.
         variance: (K,) noise variance measured at each (image units squared).
         slope: variance per unit level above the highest level (>= 0).
+        correlation_px: b, the standard deviation (px) of the Gaussian kernel that correlates the
+            noise's correlated share (0: white noise).
+        white_share: the share of the variance that is white (quantisation, a sensor's own noise);
+            the rest is correlated over b.
     """
 
     levels: np.ndarray
     variance: np.ndarray
     slope: float
+    correlation_px: float = 0.0
+    white_share: float = 1.0
 
     def std(self, images: Tensor) -> Tensor:
         """Noise standard deviation (same shape and units as `images`) at each pixel's level."""
@@ -59,10 +86,98 @@ class NoiseModel:
                             self.variance[-1] + self.slope * (x - top))
         return torch.as_tensor(np.sqrt(np.maximum(variance, 0.0)), dtype=images.dtype, device=images.device)
 
+    def draw(self, images: Tensor, generator: torch.Generator) -> Tensor:
+        """A draw of this noise (same shape and dtype as `images` (N, H, W)) at each pixel's level:
+        its white share white, the rest white noise blurred over `correlation_px` and rescaled to
+        unit variance, both times the pixel's standard deviation."""
+        std = self.std(images)
+        white = torch.randn(images.shape, generator=generator, dtype=images.dtype)
+        if self.white_share >= 1.0 or self.correlation_px <= 0.0:
+            return std * white
+        correlated = correlate(torch.randn(images.shape, generator=generator, dtype=images.dtype),
+                               self.correlation_px)
+        return std * (math.sqrt(self.white_share) * white + math.sqrt(1.0 - self.white_share) * correlated)
+
     def as_json(self) -> dict:
         return {"levels": [float(f"{x:.6g}") for x in self.levels],
                 "std": [float(f"{x:.6g}") for x in np.sqrt(self.variance)],
-                "variance_slope_above": float(f"{self.slope:.6g}")}
+                "variance_slope_above": float(f"{self.slope:.6g}"),
+                "correlation_px": float(f"{self.correlation_px:.4g}"), "white_share": float(f"{self.white_share:.4g}")}
+
+
+def correlate(white: Tensor, correlation_px: float) -> Tensor:
+    """White noise (N, H, W) of unit variance blurred by a Gaussian of `correlation_px` (px) and
+    rescaled to unit variance again (circular: the kernel's spectrum applied by FFT)."""
+    h, w = white.shape[-2:]
+    gain = _spectral_gain(h, w, correlation_px)  # (H, W) the kernel's squared spectrum
+    amplitude = torch.as_tensor(np.sqrt(gain / gain.mean()), dtype=white.dtype)
+    return torch.fft.ifft2(torch.fft.fft2(white) * amplitude).real
+
+
+def _spectral_gain(h: int, w: int, correlation_px: float) -> np.ndarray:
+    """(H, W) |K(f)|^2 of a Gaussian kernel of std `correlation_px` on the FFT grid."""
+    fy, fx = np.fft.fftfreq(h)[:, None], np.fft.fftfreq(w)[None, :]
+    return np.exp(-4.0 * math.pi**2 * correlation_px**2 * (fx**2 + fy**2))
+
+
+def residual_noise(measured: Tensor, predicted: Tensor) -> NoiseModel | None:
+    """The noise of `measured` (N, H, W), white or correlated, read in its residual against
+    `predicted` (N, H, W, same units) at the frequencies the predicted spots lack (module doc);
+    None when fewer than MIN_BAND frequencies are free of them (noise-free images, or noise too
+    weak to stand above the spot anywhere)."""
+    meas, pred = measured.detach().double().cpu(), predicted.detach().double().cpu()
+    residual = meas - pred
+    h, w = residual.shape[-2:]
+    power = (torch.fft.fft2(residual).abs() ** 2).mean(0).numpy() / (h * w)  # (H, W) mean periodogram
+    spot = (torch.fft.fft2(pred).abs() ** 2).mean(0).numpy() / (h * w)
+    band = (spot < BAND_SHARE * power) & (power > 0)
+    band[0, 0] = False
+    half = band & _half_plane(h, w)  # a real image's spectrum is symmetric: each frequency once
+    if half.sum() < MIN_BAND:
+        return None
+    white, correlated, b = _fit_spectrum(power[half], {b: _spectral_gain(h, w, b)[half] for b in CORRELATION_PX},
+                                         len(residual))
+    gain = _spectral_gain(h, w, b)
+    total = white + correlated * gain.mean()  # mean pixel variance (Parseval)
+    if total <= 0:
+        return None
+    shape = measure_levels(residual, pred, _mean_square)  # where the variance lies (mismatch and all)
+    mean_variance = float((shape.std(pred) ** 2).mean())
+    scale = total / max(mean_variance, 1e-300)
+    return NoiseModel(shape.levels, shape.variance * scale, shape.slope * scale,
+                      float(b) if correlated > 0 else 0.0, float(white / total))
+
+
+def _half_plane(h: int, w: int) -> np.ndarray:
+    """(H, W) bool: one of each pair of FFT frequencies f, -f (both where f = -f)."""
+    fy, fx = np.fft.fftfreq(h)[:, None], np.fft.fftfreq(w)[None, :]
+    return (fx > 0) | ((fx == 0) & (fy >= 0)) | ((fx == -0.5) & (fy >= 0))
+
+
+def _fit_spectrum(power: np.ndarray, gains: dict[float, np.ndarray], images: int) -> tuple[float, float, float]:
+    """(W, C, b) of the spectrum W + C gains[b] that fits the mean periodogram `power` (K,) of
+    `images` images best by Whittle's likelihood (each value a mean of `images` exponential
+    variables), with C = 0 and b = 0 (white) unless the correlated share raises the log-likelihood
+    beyond the chi^2 quantile of SPECTRUM_SIGNIFICANCE with 2 degrees of freedom (b and C): a
+    white spectrum's scatter at the band's low edge must not extrapolate into noise at the spot's
+    frequencies."""
+    def nll(white: float, correlated: float, gain: np.ndarray) -> float:
+        model = np.maximum(white + correlated * gain, 1e-9 * float(power.mean()))
+        return float(images * np.sum(np.log(model) + power / model))
+
+    white_only = float(power.mean())
+    best = (nll(white_only, 0.0, np.zeros_like(power)), white_only, 0.0, 0.0)
+    scale = white_only
+    for b, gain in gains.items():
+        if b <= 0.0:
+            continue
+        fit = minimize(lambda x: nll(x[0] * scale, x[1] * scale, gain), x0=[0.5, 0.5], bounds=[(0.0, 1e3), (0.0, 1e9)],
+                       method="L-BFGS-B")
+        if fit.fun < best[0]:
+            best = (float(fit.fun), float(fit.x[0] * scale), float(fit.x[1] * scale), b)
+    if 2.0 * (nll(white_only, 0.0, np.zeros_like(power)) - best[0]) < chi2.isf(SPECTRUM_SIGNIFICANCE, 2):
+        return white_only, 0.0, 0.0
+    return best[1], best[2], best[3]
 
 
 def measure_noise(images: Tensor, signal: Tensor | None = None) -> NoiseModel:
@@ -70,22 +185,36 @@ def measure_noise(images: Tensor, signal: Tensor | None = None) -> NoiseModel:
     levels are those of this signal (a model's prediction) and the operator reads `images` as they
     are (the residual images - prediction: no spot left whose curvature the operator could see)."""
     x = images.detach().double().cpu()[:, None]
-    response = torch.nn.functional.conv2d(x, OPERATOR.double()[None, None]).flatten().numpy()
+    response = torch.nn.functional.conv2d(x, OPERATOR.double()[None, None])[:, 0]
     levels = x if signal is None else signal.detach().double().cpu()[:, None]
-    level = torch.nn.functional.avg_pool2d(levels, 3, stride=1).flatten().numpy()
-    dark = level <= ZERO * max(float(x.abs().max()), 1e-30)
+    level = torch.nn.functional.avg_pool2d(levels, 3, stride=1)[:, 0]
+    return measure_levels(response, level, _robust_variance, ZERO * max(float(x.abs().max()), 1e-30))
+
+
+def measure_levels(values: Tensor, level: Tensor, variance_of, dark_below: float | None = None) -> NoiseModel:
+    """A NoiseModel of the variance `variance_of` finds in `values` (N, H, W: noise samples) per level
+    of `level` (N, H, W): equal-count bins of the lit pixels, the dark ones (at or below
+    `dark_below`; default ZERO of the levels' peak) a bin of their own."""
+    response, level = values.flatten().numpy(), level.flatten().numpy()
+    if dark_below is None:
+        dark_below = ZERO * max(float(np.abs(level).max()), 1e-30)
+    dark = level <= dark_below
     groups = [np.flatnonzero(dark)] if dark.any() else []
     lit = np.flatnonzero(~dark)
     if len(lit):
         order = lit[np.argsort(level[lit])]
         groups += np.array_split(order, min(LEVEL_BINS, len(order)))
     levels = np.array([float(np.median(level[g])) for g in groups])
-    variance = np.array([_robust_variance(response[g]) for g in groups])
+    variance = np.array([variance_of(response[g]) if len(g) else 0.0 for g in groups])
     levels, unique = np.unique(levels, return_index=True)  # equal levels (a constant background): one point
     variance = variance[unique]
     upper = slice(len(levels) // 2, None)
     slope = float(np.polyfit(levels[upper], variance[upper], 1)[0]) if len(levels) >= 4 else 0.0
     return NoiseModel(levels, variance, max(slope, 0.0))
+
+
+def _mean_square(values: np.ndarray) -> float:
+    return float(np.mean(values**2))
 
 
 def _robust_variance(response: np.ndarray) -> float:

@@ -56,11 +56,11 @@ from scipy.stats import chi2
 from torch import Tensor
 
 from helioflow.data.hdf5 import read_dataset
-from helioflow.data.noise import measure_noise
+from helioflow.data.noise import NoiseModel
 from helioflow.data.surfaces import read_heliostat
 from helioflow.device import resolve_device
 from helioflow.diagnosis.candidates import Candidate, candidates, implausible, separating
-from helioflow.diagnosis.noise import noise_floor
+from helioflow.diagnosis.noise import measured_noise, noise_floor
 from helioflow.diagnosis.residuals import by_sun_position, in_image, on_mirror
 from helioflow.errors import DataError
 from helioflow.io import write_text_atomic
@@ -89,8 +89,8 @@ ABSOLUTE_FLOOR = 0.002  # ... and absolute reduction of the misplaced flux fract
 ROUNDING = 1e-3  # relative: a nested fit that ends no worse than its start up to this (float32 rounding of
 #                   a loss that is a small difference of large numbers) keeps its own values
 NOISE_METHOD = ("parametric bootstrap: the final model's held-out images re-noised with the noise measured in "
-                "the images (per signal level, Immerkaer's operator; diagnosis/noise.py) and scored like the "
-                "measurements")
+                "the measurements (its level per signal level and its spatial correlation, read in the model's "
+                "residual at the frequencies the spot lacks; diagnosis/noise.py) and scored like the measurements")
 CONFOUNDED_RATIO = 1.5  # two changes whose held-out errors are within this factor explain the same residual alike
 CORRELATED_EFFECTS = 0.95  # two effects whose parameters correlate beyond this at their joint fit are confounded
 COVARIANCE_PARAMETERS = 64  # joint fits with at most this many parameters get a covariance (the surface has hundreds)
@@ -167,7 +167,7 @@ class Diagnosis:
                                                      "(plant/shared.json)"} for e in shared]
         self.candidate = {c.label: c for c in self.tried}
         self.fits: dict[frozenset, tuple[float, FitResult]] = {}
-        self.noise = measure_noise(torch.cat((train.images, heldout.images)))
+        self.noises: dict[frozenset, NoiseModel] = {}
         self.floors: dict[frozenset, tuple[float, float]] = {}
         self.covariances: dict[frozenset, FitResult | None] = {}
 
@@ -240,6 +240,19 @@ class Diagnosis:
     def error(self, labels) -> float:
         return self.fitted(labels)[0]
 
+    def noise(self, labels) -> NoiseModel:
+        """The measurements' noise read in the residual of the model with the candidates `labels`,
+        fitted on the train split, on every image (diagnosis/noise.py: `measured_noise`)."""
+        key = frozenset(labels)
+        if key not in self.noises:
+            result = self.fitted(key)[1]
+            images = torch.cat((self.train.images, self.heldout.images))
+            sun = [torch.cat((getattr(self.train, a), getattr(self.heldout, a))) for a in ("azimuth_deg", "elevation_deg")]
+            with torch.no_grad():
+                pred = self.scene.simulate(result.effects, result.tensors, *sun)
+            self.noises[key] = measured_noise(pred, images)
+        return self.noises[key]
+
     def floor(self, labels) -> float:
         """The held-out error that noise alone would leave if the model with the candidates `labels`
         were the truth (diagnosis/noise.py: its held-out images re-noised like the measurements)."""
@@ -253,7 +266,7 @@ class Diagnosis:
             with torch.no_grad():
                 pred = self.scene.simulate(result.effects, result.tensors, self.heldout.azimuth_deg,
                                            self.heldout.elevation_deg)
-            per_image, standard_error = noise_floor(pred, self.heldout.images, self.noise)
+            per_image, standard_error = noise_floor(pred, self.heldout.images, self.noise(key))
             self.floors[key] = (float(per_image.mean()), standard_error)
         return self.floors[key]
 
@@ -776,7 +789,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     if ds.attrs.get("per_image_normalised"):  # each image divided by its own peak: no absolute energy
         sig.pop("energy_ratio")
         summary["ratio"] = None
-    floor_each = noise_floor(last, everything.images, diagnosis.noise)[0]
+    floor_each = noise_floor(last, everything.images, diagnosis.noise(chosen))[0]
     error_each = misplaced_flux(last, everything.images, last_lost).numpy()
     over_noise = error_each / np.maximum(floor_each, NUMERICAL_FLOOR)
     few = pick(np.arange(len(ds.images)), MIRROR_IMAGES)  # the mirror's images (traced once per region)
@@ -799,7 +812,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
         "heldout": heldout,
         "noise_floor": remaining["noise_floor"],
         "noise_floor_standard_error": remaining["noise_floor_standard_error"],
-        "noise": {"method": NOISE_METHOD, "model": diagnosis.noise.as_json()},
+        "noise": {"method": NOISE_METHOD, "model": diagnosis.noise(chosen).as_json()},
         "remaining": {k: remaining[k] for k in ("changes", "error", "over_noise", "explained")},
         "remaining_note": (f"The images hold almost no noise: what remains is compared with the diagnosis' numerical floor "
                            f"({NUMERICAL_FLOOR})" if remaining["noise_floor"] < NUMERICAL_FLOOR else ""),
