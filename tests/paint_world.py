@@ -20,8 +20,10 @@ Effects (`world(...)` keywords), with the magnitudes a real heliostat has:
                                       the counting noise stays white, as a sensor's is)
     counted_blur_px=b           a blur after the counting (std in pixels of a 64 x 64 image), as a
                                 resampled image has: the counting noise is smooth over a few pixels
-    rectified=True              the image resampled as a rectification does (bilinear, on a grid
-                                turned by 17 mrad, stretched by 1.3 %, shifted by a fraction of a pixel)
+    rectified=True              the image resampled as a rectification does: bilinear onto a camera
+                                grid turned by 17 mrad, stretched by 1.3 % and shifted by a fraction of
+                                a pixel, and bilinear back onto the target's grid (the geometry kept,
+                                the noise correlated)
     focal_length_m=f            curved facets: each a paraboloid of this focal length (the model's
                                 facets are flat)
     soiling=g                   soiling that grows down the mirror: the reflectance falls linearly from
@@ -292,12 +294,21 @@ def camera(image: np.ndarray, world: World) -> np.ndarray:
     if world.counted_blur_px > 0:
         image = gaussian_filter(image, world.counted_blur_px * PNG_SIDE / 64, mode="constant")
     if world.rectified:
-        y, x = np.mgrid[:PNG_SIDE, :PNG_SIDE].astype(float) - PNG_SIDE / 2
-        turn, stretch = 0.017, 1.013
-        rows = stretch * (math.cos(turn) * y - math.sin(turn) * x) + PNG_SIDE / 2 + 0.37
-        cols = stretch * (math.sin(turn) * y + math.cos(turn) * x) + PNG_SIDE / 2 + 0.21
-        image = map_coordinates(image, [rows, cols], order=1)
+        image = _warped(_warped(image, 0.017, 1.013, (0.37, 0.21)), -0.017, 1 / 1.013, (0.0, 0.0), (0.37, 0.21))
     return image + world.camera[0] * image.max()
+
+
+def _warped(image: np.ndarray, turn: float, stretch: float, shift: tuple[float, float],
+            undo: tuple[float, float] | None = None) -> np.ndarray:
+    """`image` (PNG_SIDE, PNG_SIDE) sampled bilinearly at its grid turned by `turn` (rad) and stretched
+    by `stretch` about its centre, then shifted by `shift` (px); `undo`: a shift taken off before the
+    turn (the inverse of a warp by that shift)."""
+    y, x = np.mgrid[:PNG_SIDE, :PNG_SIDE].astype(float) - PNG_SIDE / 2
+    if undo is not None:
+        y, x = y - undo[0], x - undo[1]
+    rows = stretch * (math.cos(turn) * y - math.sin(turn) * x) + PNG_SIDE / 2 + shift[0]
+    cols = stretch * (math.sin(turn) * y + math.cos(turn) * x) + PNG_SIDE / 2 + shift[1]
+    return map_coordinates(image, [rows, cols], order=1)
 
 
 def enu_to_wgs84(tower: Tower, enu: np.ndarray) -> list[float]:
