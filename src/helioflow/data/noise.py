@@ -26,8 +26,8 @@ spectrum of white noise plus Gaussian-correlated noise, W + C exp(-4 pi^2 b^2 |f
 correlation length, px; W: the white share, e.g. quantisation), and the fitted spectrum summed
 over every frequency is the noise's variance (Parseval): its low frequencies, where the spot
 hides it, are the model's extrapolation. How that variance is spread over the image (more where
-the signal is: photon noise) is read in the residual filtered to the same band, per level of the
-prediction.
+the signal is: photon noise) is read in the whole residual per level of the prediction: a
+mismatch there moves the variance between levels, not its total.
 
 Used by the diagnosis' noise floor (diagnosis/noise.py) and the fits' uncertainty
 (models/uncertainty.py).
@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.optimize import minimize, nnls
+from scipy.optimize import minimize
 from scipy.stats import chi2
 from torch import Tensor
 
