@@ -4,7 +4,8 @@ model gets, over seeds (docs/diagnosis.md, "The noise floor").
     python scripts/experiments/noise_floor.py [--seeds 20]
 
 Spots: 12 Gaussians of 3-6 px per seed on 64 x 64 images, photon noise of 300 photons at the peak,
-then each camera of tests/diagnosis/test_noise.py (blur after the counting, rectification, 8-bit).
+then each camera of tests/diagnosis/test_noise.py (blur after the counting, rectification, 8-bit)
+and two blurs beyond what the floor can see (2 and 3 px).
 Printed per camera: the floor over the perfect model's error (mean, min - max over seeds) for the
 images' own operator (`measure_noise`, model-free, white) and for the residual's spectrum
 (`measured_noise`, correlated), and the latter for a model whose spots sit 2 px off (a mismatch 30x
@@ -21,11 +22,17 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "diagnosis"))
-from test_noise import CAMERAS, counted, eight_bit, spots  # noqa: E402
+from test_noise import CAMERAS, blurred, counted, eight_bit, spots  # noqa: E402
 
 from helioflow.data.noise import measure_noise  # noqa: E402
 from helioflow.diagnosis.noise import measured_noise, noise_floor  # noqa: E402
 from helioflow.scoring.metrics import misplaced_flux  # noqa: E402
+
+
+BEYOND = {  # noise blurred over more than the floor can see: its power lies where the spot's does
+    "blurred 2 px, 8-bit": (lambda x: blurred(x, 2.0), True),
+    "blurred 3 px, 8-bit": (lambda x: blurred(x, 3.0), True),
+}
 
 
 def main() -> None:
@@ -34,7 +41,7 @@ def main() -> None:
     seeds = parser.parse_args().seeds
     torch.set_num_threads(1)
     print(f"{'camera':34s} {'operator':>18s} {'residual':>18s} {'mismatched model':>18s} {'b (px)':>8s}")
-    for name, (resample, quantise) in CAMERAS.items():
+    for name, (resample, quantise) in {**CAMERAS, **BEYOND}.items():
         rows = []
         for seed in range(seeds):
             truth = spots(12, 1000 + seed)

@@ -85,13 +85,14 @@ def cmd_trace(args) -> None:
 
 
 def cmd_import_paint(args) -> None:
-    from helioflow.data.paint import import_paint
+    from helioflow.data.paint import CENTERED_DEFAULT, import_paint
 
     if args.paint_dir is not None or args.heliostat is not None:
         if args.paint_dir is None or args.heliostat is None:
             raise HelioflowError("by hand, give both --paint-dir and --heliostat")
         spec = {"paint_dir": args.paint_dir, "heliostat": args.heliostat, "resolution": args.resolution,
-                "holdout": args.holdout, "targets": args.targets, "dni_w_m2": args.dni, "centered": args.centered}
+                "holdout": args.holdout, "targets": args.targets, "dni_w_m2": args.dni,
+                "centered": args.centered or CENTERED_DEFAULT}
     else:
         spec = _spec(args, workflow.import_paint_params)
     if args.output is None and args.heliostat_output is None:
@@ -99,7 +100,7 @@ def cmd_import_paint(args) -> None:
     ds = import_paint(spec["paint_dir"], spec["heliostat"], args.output, args.heliostat_output,
                       resolution=tuple(spec.get("resolution") or (64, 64)), holdout=spec.get("holdout") or [],
                       targets=spec.get("targets"), dataset=spec.get("dataset"), dni_w_m2=spec.get("dni_w_m2", 1000.0),
-                      centered=spec.get("centered", "place"))
+                      centered=spec["centered"])
     if ds is not None:
         labels = dict(Counter(ds.split.tolist()))
         logging.info("wrote %s: %d images of %s from %s/%s (%d centered, placed; splits %s; targets %s)", args.output,
@@ -316,7 +317,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--targets", nargs="+", metavar="NAME", help="by hand: only measurements on these targets")
     p.add_argument("--dni", type=float, default=1000.0, metavar="W_M2",
                    help="by hand: nominal DNI of the dataset's attribute dni_w_m2 (default 1000)")
-    p.add_argument("--centered", choices=("place", "skip"), default="place",
+    p.add_argument("--centered", metavar="place|skip",
                    help="by hand: place the measurements with only a centered image by their UTIS centroid "
                         "(default) or skip them")
     p.add_argument("--output", help="datasets/{dataset}.h5")

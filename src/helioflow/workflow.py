@@ -177,6 +177,8 @@ def import_paint_params(config: dict, dataset: str) -> dict:
     """Parameters of rule `import_paint`: the PAINT folder, image resolution (default
     target.resolution), held-out measurement ids, the target filter, the nominal DNI and what becomes
     of the measurements with only a centered image (`centered`, default place)."""
+    from helioflow.data.paint import CENTERED_DEFAULT
+
     ds = _dataset(config, dataset)
     if ds.get("source") != "paint":
         raise ConfigError(f"dataset {dataset!r} is not imported from PAINT (source: {ds.get('source')})")
@@ -188,7 +190,7 @@ def import_paint_params(config: dict, dataset: str) -> dict:
         "holdout": copy.deepcopy(ds.get("holdout") or []),
         "targets": ds.get("targets"),
         "dni_w_m2": config["dni_w_m2"],
-        "centered": ds.get("centered", "place"),
+        "centered": ds.get("centered", CENTERED_DEFAULT),
     }
 
 
@@ -216,7 +218,7 @@ def import_paint_inputs(config: dict, dataset: str) -> dict:
         whole, centered = measurement_pngs(c)
         if whole.is_file() or not centered.is_file():
             files["measurements"] += [str(c), str(whole)]
-        elif p["centered"] == "place":
+        elif p["centered"] != "skip":
             files["measurements"] += [str(c), str(centered)]
     return files
 
@@ -765,10 +767,10 @@ def leave_one_out_ids(dataset: dict) -> list[str]:
         if len(ids) < 2:
             raise ConfigError(f"holdout: leave_one_out needs at least two images; {dataset['csv']} has {len(ids)}")
         return ids
-    from helioflow.data.paint import measurement_targets
+    from helioflow.data.paint import CENTERED_DEFAULT, measurement_targets
 
     try:
-        targets = measurement_targets(dataset["paint_dir"], dataset["heliostat"], dataset.get("centered", "place"))
+        targets = measurement_targets(dataset["paint_dir"], dataset["heliostat"], dataset.get("centered", CENTERED_DEFAULT))
     except DataError as exc:
         raise ConfigError(f"holdout: leave_one_out needs the measurement ids: {exc}") from None
     keep = dataset.get("targets")

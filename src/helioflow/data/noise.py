@@ -49,7 +49,7 @@ LEVEL_BINS = 16  # equal-count bins of the local signal level (pixels above zero
 MEDIAN_CHI2_1 = 0.45494  # median of a chi-square variable with one degree of freedom
 ZERO = 1e-12  # a level at or below this (relative to the images' peak) is an exactly dark pixel
 BAND_SHARE = 0.01  # frequencies where the prediction holds less than this share of the residual's power are noise
-CORRELATION_PX = np.concatenate(([0.0], np.geomspace(0.2, 6.0, 48)))  # correlation lengths tried (px)
+CORRELATION_PX = np.geomspace(0.2, 6.0, 48)  # correlation lengths tried (px) beside white noise
 SPECTRUM_SIGNIFICANCE = 1e-3  # a correlated share is read in the spectrum only beyond this chance of a white one's
 MIN_BAND = 16  # fewer noise-dominated frequencies than this: the residual's noise is not measured
 
@@ -137,15 +137,11 @@ def residual_noise(measured: Tensor, predicted: Tensor) -> NoiseModel | None:
         return None
     white, correlated, b = _fit_spectrum(power[half], {b: _spectral_gain(h, w, b)[half] for b in CORRELATION_PX},
                                          len(residual))
-    gain = _spectral_gain(h, w, b)
-    total = white + correlated * gain.mean()  # mean pixel variance (Parseval)
-    if total <= 0:
-        return None
+    total = white + correlated * _spectral_gain(h, w, b).mean()  # mean pixel variance (Parseval)
     shape = measure_levels(residual, pred, _mean_square)  # where the variance lies (mismatch and all)
     mean_variance = float((shape.std(pred) ** 2).mean())
     scale = total / max(mean_variance, 1e-300)
-    return NoiseModel(shape.levels, shape.variance * scale, shape.slope * scale,
-                      float(b) if correlated > 0 else 0.0, float(white / total))
+    return NoiseModel(shape.levels, shape.variance * scale, shape.slope * scale, b, white / total)
 
 
 def _half_plane(h: int, w: int) -> np.ndarray:
@@ -165,17 +161,15 @@ def _fit_spectrum(power: np.ndarray, gains: dict[float, np.ndarray], images: int
         model = np.maximum(white + correlated * gain, 1e-9 * float(power.mean()))
         return float(images * np.sum(np.log(model) + power / model))
 
-    white_only = float(power.mean())
-    best = (nll(white_only, 0.0, np.zeros_like(power)), white_only, 0.0, 0.0)
-    scale = white_only
+    white_only = float(power.mean())  # the white spectrum's maximum likelihood
+    null = nll(white_only, 0.0, np.zeros_like(power))
+    best = (null, white_only, 0.0, 0.0)
     for b, gain in gains.items():
-        if b <= 0.0:
-            continue
-        fit = minimize(lambda x: nll(x[0] * scale, x[1] * scale, gain), x0=[0.5, 0.5], bounds=[(0.0, 1e3), (0.0, 1e9)],
-                       method="L-BFGS-B")
+        fit = minimize(lambda x: nll(x[0] * white_only, x[1] * white_only, gain), x0=[0.5, 0.5],
+                       bounds=[(0.0, 1e3), (0.0, 1e9)], method="L-BFGS-B")
         if fit.fun < best[0]:
-            best = (float(fit.fun), float(fit.x[0] * scale), float(fit.x[1] * scale), b)
-    if 2.0 * (nll(white_only, 0.0, np.zeros_like(power)) - best[0]) < chi2.isf(SPECTRUM_SIGNIFICANCE, 2):
+            best = (float(fit.fun), float(fit.x[0] * white_only), float(fit.x[1] * white_only), float(b))
+    if 2.0 * (null - best[0]) < chi2.isf(SPECTRUM_SIGNIFICANCE, 2):
         return white_only, 0.0, 0.0
     return best[1], best[2], best[3]
 
@@ -205,7 +199,7 @@ def measure_levels(values: Tensor, level: Tensor, variance_of, dark_below: float
         order = lit[np.argsort(level[lit])]
         groups += np.array_split(order, min(LEVEL_BINS, len(order)))
     levels = np.array([float(np.median(level[g])) for g in groups])
-    variance = np.array([variance_of(response[g]) if len(g) else 0.0 for g in groups])
+    variance = np.array([variance_of(response[g]) for g in groups])
     levels, unique = np.unique(levels, return_index=True)  # equal levels (a constant background): one point
     variance = variance[unique]
     upper = slice(len(levels) // 2, None)

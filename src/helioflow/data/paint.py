@@ -109,6 +109,8 @@ CALIBRATION_SUFFIX = "-calibration-properties.json"
 CORNERS = ("upper_left", "upper_right", "lower_left", "lower_right")
 CONTROL_POINTS = 6  # B-spline control points per facet side of the (zero) surface deformation
 CENTERED_MODES = ("place", "skip")  # option `centered`: place centered-only measurements, or leave them out
+CENTERED_DEFAULT = "place"
+REPAIR = "remove this measurement (its calibration-properties.json and PNG) or repair the image"
 # side (m) of the square window a <id>-flux-centered.png spans, by its pixels per side (module docstring):
 # 64 (the 2025 release) 6 m between the outer pixel centres, 6 * 64 / 63; 256 (2026) as fitted to the whole images
 CENTERED_WINDOW_M = {64: 6.0 * 64 / 63, 256: 6.035}
@@ -306,15 +308,13 @@ def read_flux_png(path: Path) -> np.ndarray:
     """(H, W) float64 grey levels in [0, 1] of a PAINT flux PNG; DataError if missing or corrupt."""
     if not path.is_file():
         raise DataError(f"{path} does not exist (each <id>{CALIBRATION_SUFFIX} needs its <id>-flux.png)")
-    return read_grey_png(path, str(path), "remove this measurement (its calibration-properties.json and PNG) "
-                                          "or repair the image")[0]
+    return read_grey_png(path, str(path), REPAIR)[0]
 
 
 def read_centered_png(path: Path) -> np.ndarray:
     """(n, n) float64 grey levels in [0, 1] of a PAINT ``<id>-flux-centered.png``, n a key of
     CENTERED_WINDOW_M; DataError if corrupt or of another size."""
-    image = read_grey_png(path, str(path), "remove this measurement (its calibration-properties.json and PNG) "
-                                           "or repair the image")[0]
+    image = read_grey_png(path, str(path), REPAIR)[0]
     n = image.shape[0]
     if image.shape[1] != n or n not in CENTERED_WINDOW_M:
         sizes = " or ".join(f"{k} x {k}" for k in CENTERED_WINDOW_M)
@@ -516,7 +516,7 @@ def _sort_key(mid: str):
     return (not mid.isdigit(), int(mid) if mid.isdigit() else 0, mid)
 
 
-def measurement_targets(paint_dir: str | os.PathLike, heliostat: str, centered: str = "place") -> dict[str, str]:
+def measurement_targets(paint_dir: str | os.PathLike, heliostat: str, centered: str = CENTERED_DEFAULT) -> dict[str, str]:
     """{measurement id: target name} of a heliostat folder (numeric ids first, in order), read from
     each <id>-calibration-properties.json alone: what splitting a dataset into folds needs
     (`helioflow.workflow.expand_leave_one_out`); the import checks everything else. `centered`:
@@ -528,7 +528,7 @@ def measurement_targets(paint_dir: str | os.PathLike, heliostat: str, centered: 
 
 
 def read_measurements(folder: Path, tower: Tower, targets: list[str] | None,
-                      centered: str = "place") -> list[Measurement]:
+                      centered: str = CENTERED_DEFAULT) -> list[Measurement]:
     """Every measurement of a heliostat folder (numeric ids first, in order), optionally only
     those on `targets`; with `centered` "skip" without those that have only their centered PNG
     (not read at all); DataError if there are none."""
@@ -621,7 +621,7 @@ def import_paint(
     targets: list[str] | None = None,
     dataset: str | None = None,
     dni_w_m2: float = 1000.0,
-    centered: str = "place",
+    centered: str = CENTERED_DEFAULT,
 ) -> CalibrationDataset | None:
     """Import one PAINT heliostat folder (conventions in the module docstring).
 

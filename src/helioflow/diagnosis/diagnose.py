@@ -167,6 +167,7 @@ class Diagnosis:
                                                      "(plant/shared.json)"} for e in shared]
         self.candidate = {c.label: c for c in self.tried}
         self.fits: dict[frozenset, tuple[float, FitResult]] = {}
+        self.predictions: dict[frozenset, Tensor] = {}
         self.noises: dict[frozenset, NoiseModel] = {}
         self.floors: dict[frozenset, tuple[float, float]] = {}
         self.covariances: dict[frozenset, FitResult | None] = {}
@@ -240,17 +241,23 @@ class Diagnosis:
     def error(self, labels) -> float:
         return self.fitted(labels)[0]
 
-    def noise(self, labels) -> NoiseModel:
-        """The measurements' noise read in the residual of the model with the candidates `labels`,
-        fitted on the train split, on every image (diagnosis/noise.py: `measured_noise`)."""
+    def predicted(self, labels) -> Tensor:
+        """(N_train + N_heldout, H, W) the images of the model with the candidates `labels`, fitted on
+        the train split, at every sun position: the train split's, then the held-out ones (traced once)."""
         key = frozenset(labels)
-        if key not in self.noises:
+        if key not in self.predictions:
             result = self.fitted(key)[1]
-            images = torch.cat((self.train.images, self.heldout.images))
             sun = [torch.cat((getattr(self.train, a), getattr(self.heldout, a))) for a in ("azimuth_deg", "elevation_deg")]
             with torch.no_grad():
-                pred = self.scene.simulate(result.effects, result.tensors, *sun)
-            self.noises[key] = measured_noise(pred, images)
+                self.predictions[key] = self.scene.simulate(result.effects, result.tensors, *sun)
+        return self.predictions[key]
+
+    def noise(self, labels) -> NoiseModel:
+        """The measurements' noise read in the residual of the model with the candidates `labels` on
+        every image (diagnosis/noise.py: `measured_noise`)."""
+        key = frozenset(labels)
+        if key not in self.noises:
+            self.noises[key] = measured_noise(self.predicted(key), torch.cat((self.train.images, self.heldout.images)))
         return self.noises[key]
 
     def floor(self, labels) -> float:
@@ -262,10 +269,7 @@ class Diagnosis:
         """(that floor, the standard error of its bootstrap)."""
         key = frozenset(labels)
         if key not in self.floors:
-            result = self.fitted(key)[1]
-            with torch.no_grad():
-                pred = self.scene.simulate(result.effects, result.tensors, self.heldout.azimuth_deg,
-                                           self.heldout.elevation_deg)
+            pred = self.predicted(key)[len(self.train.images):]
             per_image, standard_error = noise_floor(pred, self.heldout.images, self.noise(key))
             self.floors[key] = (float(per_image.mean()), standard_error)
         return self.floors[key]
