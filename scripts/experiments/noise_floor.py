@@ -7,8 +7,9 @@ Spots: 12 Gaussians of 3-6 px per seed on 64 x 64 images, photon noise of 300 ph
 then each camera of tests/diagnosis/test_noise.py (blur after the counting, rectification, 8-bit)
 and two blurs beyond what the floor can see (2 and 3 px).
 Printed per camera: the floor over the perfect model's error (mean, min - max over seeds) for the
-images' own operator (`measure_noise`, model-free, white) and for the residual's spectrum
-(`measured_noise`, correlated), and the latter for a model whose spots sit 2 px off (a mismatch 30x
+images' own operator (`measure_noise`, model-free, white) and for the diagnosis' estimate
+(`measured_noise`: the residual's spectrum, or the operator where it reads more), and the latter
+for a model whose spots sit 2 px off (a mismatch 30x
 the noise: it must not pass for noise), and the correlation length read (px).
 """
 
@@ -40,7 +41,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=20)
     seeds = parser.parse_args().seeds
     torch.set_num_threads(1)
-    print(f"{'camera':34s} {'operator':>18s} {'residual':>18s} {'mismatched model':>18s} {'b (px)':>8s}")
+    print(f"{'camera':34s} {'operator':>18s} {'measured_noise':>18s} {'mismatched model':>18s} {'b (px)':>8s}")
     for name, (resample, quantise) in {**CAMERAS, **BEYOND}.items():
         rows = []
         for seed in range(seeds):

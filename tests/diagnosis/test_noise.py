@@ -115,8 +115,8 @@ CAMERAS = {  # noise that is not white: how the counted image reaches the file (
 def test_the_floor_of_noise_that_is_not_white_is_the_error_a_perfect_model_gets(camera):
     """Photon noise blurred after the counting, resampled, quantised: the floor read in the residual
     of the true spots (as the camera resamples them, not quantised) is within 20 % of the error those
-    spots get, on each of three seeds (measured: 0.91-1.05; the images' own operator, Immerkaer's,
-    reads 0.6-0.7 of it on rectified or 0.5 px blurred images, 0.3 at 1 px, 0.07 without quantisation)."""
+    spots get, on each of three seeds (over 20 seeds: docs/diagnosis.md; the images' own operator,
+    Immerkaer's, reads 0.3-0.7 of it on these cases, 0.07 without quantisation)."""
     resample, quantise = CAMERAS[camera]
     for seed in range(3):
         truth = spots(12, 20 + seed)

@@ -5,8 +5,8 @@ A diagnosis that cannot tell noise from a residual cannot say "explained". Two s
 1. **The noise, measured in the measurements** (data/noise.py, `NoiseModel`): its level and its
    spatial correlation read in the residual of the fitted model at the spatial frequencies the
    predicted spot lacks (`residual_noise`: what the model misses lies where the spot's own power
-   is, so it does not pass for noise), or, where no frequency is free of the spot, Immerkær's
-   operator per level of the local signal in the images themselves (white noise only).
+   is, so it does not pass for noise), or Immerkær's operator per level of the local signal in the
+   images themselves (white noise only) where that reads more (`measured_noise`).
 2. **A parametric bootstrap**: the fitted model's images (each scaled to its measurement's sum)
    get noise of that level-dependent variance and that correlation (clipped at 0, as a camera's
    pixels are), and are scored against the noise-free model images exactly as the measurements
@@ -33,9 +33,13 @@ DRAWS = 16  # bootstrap draws per image
 
 def measured_noise(model_images: Tensor, measured: Tensor) -> NoiseModel:
     """The measurements' (N, H, W) noise (module doc, step 1), read in their residual against the
-    fitted model's images (N, H, W; any scale: each is scaled to its measurement's sum)."""
+    fitted model's images (N, H, W; any scale: each is scaled to its measurement's sum), or the
+    images' own operator's where that reads more noise at the model's levels: both read low where
+    they fail (the operator on any correlated noise, the residual on noise blurred over 3 px, whose
+    power lies where the spot's does), neither reads high (docs/diagnosis.md)."""
     model = _scaled(model_images, measured)
-    return residual_noise(measured, model) or measure_noise(measured)
+    candidates = [n for n in (residual_noise(measured, model), measure_noise(measured)) if n is not None]
+    return max(candidates, key=lambda n: float((n.std(model) ** 2).mean()))
 
 
 def _scaled(model_images: Tensor, measured: Tensor) -> Tensor:
