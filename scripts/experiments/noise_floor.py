@@ -29,7 +29,6 @@ from helioflow.data.noise import measure_noise  # noqa: E402
 from helioflow.diagnosis.noise import measured_noise, noise_floor  # noqa: E402
 from helioflow.scoring.metrics import misplaced_flux  # noqa: E402
 
-
 BEYOND = {  # noise blurred over more than the floor can see: its power lies where the spot's does
     "blurred 2 px, 8-bit": (lambda x: blurred(x, 2.0), True),
     "blurred 3 px, 8-bit": (lambda x: blurred(x, 3.0), True),
