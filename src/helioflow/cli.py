@@ -100,7 +100,7 @@ def cmd_import_paint(args) -> None:
     ds = import_paint(spec["paint_dir"], spec["heliostat"], args.output, args.heliostat_output,
                       resolution=tuple(spec.get("resolution") or (64, 64)), holdout=spec.get("holdout") or [],
                       targets=spec.get("targets"), dataset=spec.get("dataset"), dni_w_m2=spec.get("dni_w_m2", 1000.0),
-                      centered=spec["centered"])
+                      centered=spec.get("centered", CENTERED_DEFAULT))
     if ds is not None:
         labels = dict(Counter(ds.split.tolist()))
         logging.info("wrote %s: %d images of %s from %s/%s (%d centered, placed; splits %s; targets %s)", args.output,
