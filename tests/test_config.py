@@ -78,6 +78,9 @@ CASES = {
     "fit in dataset world effects": (_set("datasets.sanity_check.world_effects.sunshape.csr", "fit"),
                                      ["datasets.sanity_check.world_effects.sunshape.csr", "'fit'", "model"]),
     "wrong type": (_set("seed", "forty-two"), ["seed", "'forty-two'", "integer"]),
+    "a plan for a dataset the config lacks": (_set("plan.datasets", ["aa39"]),
+                                              ["plan.datasets", "'aa39'", "sanity_check, semi_sphere", "plan: null"]),
+    "a plan without drt": (_set("networks.drt", None), ["plan.datasets", "'sanity_check'", "drt"]),
 }
 
 

@@ -203,6 +203,12 @@ def _check_references(config: dict, source: str) -> None:
         _check_traced(ds, where)
         _check_sees_target(config["heliostats"][ds["heliostat"]]["position_m"], config["target"],
                            f"heliostat {ds['heliostat']!r}", where)
+    for name in (config.get("plan") or {}).get("datasets") or []:
+        if name not in config["datasets"]:
+            raise ConfigError(f"{source}: plan.datasets has {name!r}, which is not in datasets (known: "
+                              f"{', '.join(config['datasets'])}); a variant without it sets plan: null or its own datasets")
+        if "drt" not in (config.get("networks") or {}):
+            raise ConfigError(f"{source}: plan.datasets has {name!r}, but networks has no drt, whose fit a plan is made from")
     if config.get("field"):
         _check_field(config, f"{source}: field")
     flux = (config.get("plant") or {}).get("flux")
