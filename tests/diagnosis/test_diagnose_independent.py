@@ -72,15 +72,8 @@ def diagnosed(tmp_path_factory):
     return run
 
 
-MARGINAL = {  # known open: named right, but what remains sits at the EXPLAINED bar (issue "Real images", item 2)
-    "canting + camera": "camera and canting named; what remains 2.007 x the residual-read floor against the 2.0 bar "
-                        "(a fitted model's estimation error is not in the floor)",
-}
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.xfail(reason=MARGINAL[c], strict=False))
-                                  if c in MARGINAL else c for c in CASES])
+@pytest.mark.parametrize("case", CASES)
 def test_the_hidden_effects_are_named_and_what_remains_is_the_noise(case, diagnosed):
     result = diagnosed(case)
     hidden, remaining = CASES[case][1], result["remaining"]

@@ -104,6 +104,9 @@ EXPLAINED = 2.0  # a held-out error up to this many times the noise floor is exp
 #                  model adds its parameters' estimation error to the noise: 0.9-1.7 x on the independent cases)
 MIRROR_IMAGES = 48  # images (evenly picked) the mirror localisation traces, region by region
 NUMERICAL_FLOOR = 0.001  # misplaced flux below which a noise floor is not resolved by the diagnosis' fits
+MODEL_RESOLUTION = 0.002  # misplaced flux between the model's spot and an independent Monte Carlo of the same physics
+#                           on nearly noise-free 8-bit images (0.0020-0.0025, scripts/experiments/model_resolution.py):
+#                           the model's own mismatch, which no candidate removes; `compared_floor` adds it to the noise's
 PARTLY = 0.1  # a best candidate that cuts an unexplained residual by this much is named as explaining part of it
 SWAP_NOISE = 0.5  # swapping a chosen change for another that ends within this fraction of the noise floor: alike
 SIGNIFICANCE = 1e-3  # a candidate's fitted parameters depart from their do-nothing values at this level (Wald test)
@@ -151,10 +154,13 @@ class Diagnosis:
     """One dataset against one model effect list: fits, scores and ranks (see module doc)."""
 
     def __init__(self, scene: Scene, effects: dict, train: Measurements, heldout: Measurements,
-                 settings: FitSettings, max_effects: int = 2, plant: str = ""):
+                 settings: FitSettings, max_effects: int = 2, plant: str = "", measured: bool = True):
         """`plant`: the shared effects (the registry's `shared_by`) were fitted across this plant's
-        heliostats (diagnosis/shared.py): no change to them is tried here."""
+        heliostats (diagnosis/shared.py): no change to them is tried here. `measured`: images that
+        helioflow's tracer did not make (a camera's, an independent Monte Carlo's): the model's own
+        resolution counts in what remains (`compared_floor`)."""
         self.scene, self.effects, self.train, self.heldout = scene, effects, train, heldout
+        self.measured = measured
         self.max_effects = max_effects
         self.settings = FitSettings(**{**vars(settings), "loss": "shape"})
         known = frozenset({"neighbours"} if scene.neighbours is not None and len(scene.neighbours) else ())
@@ -277,12 +283,12 @@ class Diagnosis:
     def remaining(self, labels) -> dict:
         """What remains after the candidates `labels`: held-out error, the noise floor, their ratio,
         and whether it is explained down to the noise (within EXPLAINED times the floor). The ratio
-        is taken to at least NUMERICAL_FLOOR: on noise-free images (a synthetic dataset) the
-        diagnosis' own fits, at their settings, cannot claim less."""
+        is taken against `compared_floor`: the noise's floor with the model's own resolution."""
         error, (floor, standard_error) = self.error(labels), self._floor(labels)
-        ratio = error / max(floor, NUMERICAL_FLOOR)
+        ratio = error / float(compared_floor(floor, self.measured))
         return {"changes": list(labels), "error": error, "noise_floor": floor,
-                "noise_floor_standard_error": standard_error, "over_noise": ratio, "explained": bool(ratio <= EXPLAINED)}
+                "noise_floor_standard_error": standard_error, "model_resolution": MODEL_RESOLUTION * self.measured,
+                "over_noise": ratio, "explained": bool(ratio <= EXPLAINED)}
 
     def select(self) -> list[str]:
         """The candidates the measurements need (best subset, module doc), in the order a forward
@@ -536,6 +542,21 @@ def heldout_error(scene: Scene, result: FitResult, heldout: Measurements) -> flo
     return float(misplaced_flux(pred, heldout.images, lost).mean())
 
 
+def compared_floor(noise_floor, measured: bool):
+    """What a model without a missing effect leaves (misplaced flux; a float or an array per image):
+    on `measured` images (not helioflow's own traces) the noise's floor and the model's own
+    resolution, MODEL_RESOLUTION, in quadrature (a systematic difference d and noise e leave a pixel
+    E|d + e|, which goes from E|e| at d = 0 to |d| at d >> e as sqrt(d^2 + E|e|^2) does; on noise
+    blurred over pixels the noise's floor falls to the model's resolution: docs/diagnosis.md,
+    "Error rates"); on helioflow's own traces the noise's floor. At least NUMERICAL_FLOOR."""
+    return np.maximum(np.hypot(noise_floor, MODEL_RESOLUTION if measured else 0.0), NUMERICAL_FLOOR)
+
+
+def is_measured(attrs: dict) -> bool:
+    """Whether a dataset's images are measurements (PAINT, own camera images), not helioflow's own trace."""
+    return not str(attrs.get("source", "")).startswith("synthetic")
+
+
 def is_meaningful(before: float, after: float) -> bool:
     """Does going from held-out error `before` to `after` count as a finding (module doc)?"""
     return after <= (1.0 - THRESHOLD) * before and before - after >= ABSOLUTE_FLOOR
@@ -635,10 +656,14 @@ def verdict(ranking: list[dict], summary: dict, remaining: dict, location: dict)
 
 def _floor_words(remaining: dict) -> str:
     """What the remaining error is compared with, in words."""
-    if remaining["noise_floor"] < NUMERICAL_FLOOR:
+    floor, resolution = remaining["noise_floor"], remaining["model_resolution"]
+    if resolution:
+        return (f"what noise and the model's own resolution leave ({float(np.hypot(floor, resolution)):.3f}: the noise "
+                f"{floor:.3f}, the model {resolution})")
+    if floor < NUMERICAL_FLOOR:
         return (f"the diagnosis' numerical floor ({NUMERICAL_FLOOR}: these images hold almost no noise, "
-                f"{remaining['noise_floor']:.5f})")
-    return f"what noise alone leaves on these images ({remaining['noise_floor']:.3f})"
+                f"{floor:.5f})")
+    return f"what noise alone leaves on these images ({floor:.3f})"
 
 
 def _lives(location: dict) -> str:
@@ -773,7 +798,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     fit = FitSettings(steps=settings["fit_steps"], rounds=settings["rounds"])
     diagnosis = Diagnosis(fit_scene, effects, _measurements(ds, pick(train_index, settings["fit_images"]), scale, device),
                           _measurements(ds, pick(heldout_index, settings["heldout_images"]), scale, device), fit,
-                          settings["max_effects"], plant=plant)
+                          settings["max_effects"], plant=plant, measured=is_measured(ds.attrs))
     before, model, ranking, skipped, chosen = diagnosis.rank()
     remaining = diagnosis.remaining(chosen)
     final = with_uncertainty(fit_scene, diagnosis.fitted(chosen)[1], diagnosis.train, "shape")
@@ -795,7 +820,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
         summary["ratio"] = None
     floor_each = noise_floor(last, everything.images, diagnosis.noise(chosen))[0]
     error_each = misplaced_flux(last, everything.images, last_lost).numpy()
-    over_noise = error_each / np.maximum(floor_each, NUMERICAL_FLOOR)
+    over_noise = error_each / compared_floor(floor_each, diagnosis.measured)
     few = pick(np.arange(len(ds.images)), MIRROR_IMAGES)  # the mirror's images (traced once per region)
     at = torch.as_tensor(few)
     location = {"changes": chosen, "sun_position": by_sun_position(ds.azimuth_deg, ds.elevation_deg, over_noise),
@@ -811,15 +836,17 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
         "error_measure": ERROR_MEASURE,
         "threshold": {"relative_reduction": THRESHOLD, "absolute_reduction": ABSOLUTE_FLOOR,
                       "significance": SIGNIFICANCE,
-                      "explained_over_noise": EXPLAINED, "numerical_floor": NUMERICAL_FLOOR},
+                      "explained_over_noise": EXPLAINED, "numerical_floor": NUMERICAL_FLOOR,
+                      "model_resolution": MODEL_RESOLUTION},
         "heldout_error": before,
         "heldout": heldout,
         "noise_floor": remaining["noise_floor"],
         "noise_floor_standard_error": remaining["noise_floor_standard_error"],
         "noise": {"method": NOISE_METHOD, "model": diagnosis.noise(chosen).as_json()},
-        "remaining": {k: remaining[k] for k in ("changes", "error", "over_noise", "explained")},
+        "remaining": {k: remaining[k] for k in ("changes", "error", "model_resolution", "over_noise", "explained")},
         "remaining_note": (f"The images hold almost no noise: what remains is compared with the diagnosis' numerical floor "
-                           f"({NUMERICAL_FLOOR})" if remaining["noise_floor"] < NUMERICAL_FLOOR else ""),
+                           f"({NUMERICAL_FLOOR})" if remaining["noise_floor"] < NUMERICAL_FLOOR and not diagnosis.measured
+                           else ""),
         "model_fitted": _summarised(model.fitted_values()),
         "ranking": ranking,
         "not_tested": skipped,
