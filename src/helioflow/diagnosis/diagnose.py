@@ -105,7 +105,7 @@ EXPLAINED = 2.0  # a held-out error up to this many times the noise floor is exp
 MIRROR_IMAGES = 48  # images (evenly picked) the mirror localisation traces, region by region
 NUMERICAL_FLOOR = 0.001  # misplaced flux below which a noise floor is not resolved by the diagnosis' fits
 MODEL_RESOLUTION = 0.002  # misplaced flux between the model's spot and an independent Monte Carlo of the same physics
-#                           on nearly noise-free 8-bit images (0.0020-0.0025, scripts/experiments/model_resolution.py):
+#                           on nearly noise-free 8-bit images (0.0020-0.0027, scripts/experiments/model_resolution.py):
 #                           the model's own mismatch, which no candidate removes; `compared_floor` adds it to the noise's
 PARTLY = 0.1  # a best candidate that cuts an unexplained residual by this much is named as explaining part of it
 SWAP_NOISE = 0.5  # swapping a chosen change for another that ends within this fraction of the noise floor: alike
