@@ -49,6 +49,16 @@ def cmd_recovery(args) -> None:
         write_recovery(args.model, args.heliostat, args.dataset, args.output, args.device)
 
 
+def cmd_fitted_heliostat(args) -> None:
+    from helioflow.scoring.fitted_heliostat import fitted_heliostat, write_fitted_heliostat
+
+    step = {} if args.grid_step_m is None else {"grid_step_m": args.grid_step_m}
+    if args.output is None:
+        print(json.dumps(fitted_heliostat(args.model, **step), indent=1))
+    else:
+        write_fitted_heliostat(args.model, args.output, args.figure, **step)
+
+
 def cmd_batch(args) -> None:
     from helioflow.batch import run_batch
 
@@ -438,6 +448,14 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--output", help="recovery/<dataset>.json (default: print the JSON)")
     p.add_argument("--device", default="cpu", choices=("cpu", "cuda", "auto"), help="where the model predicts")
     p.set_defaults(func=cmd_recovery)
+
+    p = sub.add_parser("fitted-heliostat", help="the heliostat a drt fit found (surface deviation on a grid, slope "
+                                                "error, canting, tracking, each with sigma), as JSON")
+    p.add_argument("--model", required=True, help="models/<dataset>/drt.pt")
+    p.add_argument("--output", help="heliostats/<dataset>.json (default: print the JSON)")
+    p.add_argument("--figure", help="heliostats/<dataset>.png: the surface's deviation and sigma (with --output)")
+    p.add_argument("--grid-step-m", type=float, help="spacing of the surface grid (m; default 0.05)")
+    p.set_defaults(func=cmd_fitted_heliostat)
 
     p = sub.add_parser("plan-measurements", help="the next calibration images to take: the sun positions that "
                                                  "shrink a fitted physics model's uncertainty most")

@@ -167,9 +167,9 @@ def name_pattern(names: list[str]) -> str:
 
 
 def centroid_datasets(config: dict) -> list[str]:
-    """The PAINT datasets whose centroid check (rule paint_centroids) the report shows: every one,
-    but of leave-one-out folds (the same images) only the first."""
-    folds = {f for group in leave_one_out_groups(config).values() for f in group[1:]}
+    """The PAINT datasets whose centroid check (rule paint_centroids) the report shows: every one
+    but the leave-one-out folds (the whole dataset holds their images)."""
+    folds = {f for group in leave_one_out_groups(config).values() for f in group}
     return [d for d in paint_datasets(config) if d not in folds]
 
 
@@ -400,10 +400,25 @@ def efficiency_metrics(config: dict) -> list[str]:
 
 
 def diagnosis_paths(config: dict) -> list[str]:
-    """diagnosis/<dataset>.json of every dataset when the config has a `diagnosis` section, else none."""
+    """diagnosis/<dataset>.json of every dataset when the config has a `diagnosis` section, else none;
+    of a leave-one-out dataset the whole one only (every image), not its folds."""
     if "diagnosis" not in config:
         return []
-    return [f"{results_dir(config)}/diagnosis/{d}.json" for d in network_datasets(config)]
+    folds = {f for group in leave_one_out_groups(config).values() for f in group}
+    return [f"{results_dir(config)}/diagnosis/{d}.json" for d in network_datasets(config) if d not in folds]
+
+
+def fitted_heliostat_paths(config: dict) -> list[str]:
+    """heliostats/<dataset>.json and .png (rule `fitted_heliostat`) of every real (PAINT or images) dataset
+    drt is trained on, when drt is among the networks: of a leave-one-out dataset the whole one, not
+    its folds; of a plant none (its table holds each heliostat's fit)."""
+    if "drt" not in (config.get("networks") or {}):
+        return []
+    skip = {f for group in leave_one_out_groups(config).values() for f in group}
+    skip |= {d for members in plant_groups(config).values() for d in members}
+    imported = set(paint_datasets(config)) | set(images_datasets(config))
+    return [f"{results_dir(config)}/heliostats/{d}.{kind}" for d in network_datasets(config)
+            if d in imported and d not in skip for kind in ("json", "png")]
 
 
 def recovery_paths(config: dict) -> list[str]:
@@ -433,6 +448,7 @@ def report_inputs(config: dict) -> dict[str, list[str]]:
         "psnr": [f"{r}/figures/{d}/{m}_psnr.png" for d in datasets if d not in plant for m in networks],
         "data_efficiency": [f"{r}/figures/data_efficiency.png"] if efficiency else [],
         "recovery": recovery_paths(config),
+        "heliostats": fitted_heliostat_paths(config),
         "plan": plan_paths(config),
         "diagnosis": diagnosis_paths(config),
         "diagnosis_figures": [f"{r}/figures/diagnosis/{d}_{kind}.png" for d in diagnosed
@@ -798,18 +814,25 @@ def leave_one_out_folds(name: str, dataset: dict) -> dict[str, dict]:
 
 
 def expand_leave_one_out(config: dict) -> dict:
-    """The config (a copy) with every PAINT or images dataset whose holdout is leave_one_out replaced by its
+    """The config (a copy) with every PAINT or images dataset whose holdout is leave_one_out followed by its
     folds (leave_one_out_folds), in place of it in `datasets`' order, so that the existing
-    import, train, evaluate and diagnose rules run per fold. A fold name already in use raises
-    ConfigError."""
-    return _expand_datasets(config, lambda name, ds: leave_one_out_folds(name, ds)
-                            if ds.get("holdout") == LEAVE_ONE_OUT else None, "fold")
+    import and train rules run per fold; the dataset itself stays with every image training (no
+    holdout): the calibration on all its images, which is diagnosed and written out
+    (fitted_heliostat_paths), while the folds score how well such a fit predicts an image it has
+    not seen. A fold name already in use raises ConfigError."""
+    def whole_and_folds(name: str, ds: dict) -> dict | None:
+        if ds.get("holdout") != LEAVE_ONE_OUT:
+            return None
+        whole = {k: v for k, v in copy.deepcopy(ds).items() if k != "holdout"}
+        return {name: whole, **leave_one_out_folds(name, ds)}
+
+    return _expand_datasets(config, whole_and_folds, "fold")
 
 
 def _expand_datasets(config: dict, generated, what: str) -> dict:
     """The config (a copy) with each dataset for which generated(name, entry) gives {name: entry}
-    replaced by those, in its place in `datasets`' order (None: kept); a generated name already in
-    use raises ConfigError."""
+    replaced by those (which may keep its own name), in its place in `datasets`' order (None: kept);
+    a generated name already in use raises ConfigError."""
     config = copy.deepcopy(config)
     datasets = {}
     for name, ds in config["datasets"].items():
@@ -817,7 +840,7 @@ def _expand_datasets(config: dict, generated, what: str) -> dict:
         if entries is None:
             datasets[name] = ds
             continue
-        taken = sorted(set(entries) & set(config["datasets"]))
+        taken = sorted((set(entries) - {name}) & set(config["datasets"]))
         if taken:
             raise ConfigError(f"datasets.{name}: the {what} name {taken[0]!r} is already a dataset; rename it")
         datasets.update(entries)

@@ -38,7 +38,9 @@ def _config(paint_dir=PAINT, **aa39) -> dict:
 def test_leave_one_out_makes_one_dataset_per_image_each_holding_that_one_out():
     config = expand_leave_one_out(_config(targets=["multi_focus_tower"]))
     folds = [f"aa39_loo_{i}" for i in MULTI_FOCUS]
-    assert list(config["datasets"]) == ["scan", "sky", *folds]  # in place of aa39, in order
+    assert list(config["datasets"]) == ["scan", "sky", "aa39", *folds]  # aa39 itself, then its folds, in order
+    whole = config["datasets"]["aa39"]  # the calibration on every image: nothing held out
+    assert "holdout" not in whole and FOLD_KEY not in whole and import_paint_params(config, "aa39")["holdout"] == []
     for fold, mid in zip(folds, MULTI_FOCUS):
         ds = config["datasets"][fold]
         assert ds["holdout"] == [mid] and ds[FOLD_KEY] == "aa39" and ds["targets"] == ["multi_focus_tower"]
@@ -69,7 +71,10 @@ def test_rule_inputs_list_every_fold_per_network_and_the_report_takes_the_summar
     assert set(inputs) == {"datasets", "model_nearest", "metrics_nearest", "model_drt", "metrics_drt"}
     assert report_inputs(config)["leave_one_out"] == [f"{r}/figures/leave_one_out/aa39.png",
                                                       f"{r}/leave_one_out/aa39.csv"]
-    assert centroid_datasets(config) == ["aa39_loo_202558"]  # the folds hold the same images: one check
+    assert centroid_datasets(config) == ["aa39"]  # the folds hold the same images: one check, on the whole
+    assert report_inputs(config)["heliostats"] == [f"{r}/heliostats/aa39.json", f"{r}/heliostats/aa39.png"]  # the whole one's fit, not the folds'
+    config["diagnosis"] = {}
+    assert report_inputs(config)["diagnosis"] == [f"{r}/diagnosis/{d}.json" for d in ("scan", "sky", "aa39")]
     with pytest.raises(ConfigError, match="no leave-one-out dataset 'scan'; leave-one-out datasets: aa39"):
         leave_one_out_inputs(config, "scan")
 
@@ -112,7 +117,7 @@ def test_the_paint_aa39_variant_validates_over_the_default_config_and_runs_folds
     assert groups == {"aa39": [f"aa39_loo_{i}" for i in MULTI_FOCUS],
                       "aa39_lower": [f"aa39_lower_loo_{i}" for i in ["209075", "223788", "246955", "271633",
                                                                        "extra2"]]}
-    assert set(config["datasets"]) == {f for folds in groups.values() for f in folds}
+    assert set(config["datasets"]) == {f for folds in groups.values() for f in folds} | {"aa39", "aa39_lower"}
     assert all(ds["paint_dir"] == "tests/data/paint" for ds in config["datasets"].values())
 
 

@@ -68,6 +68,23 @@ rule recovery:
         " --dataset {input.dataset:q} --device {params.device:q} --output {output:q} > {log:q} 2>&1"
 
 
+rule fitted_heliostat:
+    """The heliostat drt found for a real dataset: surface deviation on a grid, slope error, canting, tracking, with sigma."""
+    input:
+        f"{RESULTS}/models/{{dataset}}/drt.pt",
+    output:
+        json=f"{RESULTS}/heliostats/{{dataset}}.json",
+        figure=f"{RESULTS}/heliostats/{{dataset}}.png",
+    params:
+        torch_threads=SHORT_JOB_THREADS,
+    log:
+        f"{RESULTS}/logs/fitted_heliostat/{{dataset}}.log",
+    threads: SHORT_JOB_THREADS
+    shell:
+        "helioflow --threads {params.torch_threads:q} fitted-heliostat --model {input:q} --output {output.json:q}"
+        " --figure {output.figure:q} > {log:q} 2>&1"
+
+
 rule table:
     """Table 1: network x dataset x split (PSNR, SSIM) with controllability."""
     input:

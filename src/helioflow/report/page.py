@@ -10,6 +10,7 @@ benchmark files, and writes results/<experiment>/report.html with the sections
     Sample grids        figures/<d>/<model>_samples.png
     PSNR / sun position figures/<d>/<model>_psnr.png (+ figures/data_efficiency.png)
     Recovery            recovery/<d>.json: what drt recovered of each synthetic heliostat, as tables
+    Fitted heliostats   heliostats/<d>.json and .png: what drt found of each real heliostat, with sigma
     Next images         plan/<d>.json: the calibration images that shrink drt's uncertainty most
     Diagnosis           diagnosis/<d>.json: verdict, ranking, signatures; figures/diagnosis/<d>_*.png
     Error ledger        the `ledger` of each diagnosis JSON and figures/diagnosis/<d>_ledger.png
@@ -55,7 +56,7 @@ from helioflow.report.html import (
 )
 
 SECTIONS = ("datasets", "dataset_figures", "paint_centroids", "table", "samples", "psnr", "data_efficiency",
-            "recovery", "plan", "diagnosis", "diagnosis_figures", "field", "leave_one_out", "plant",
+            "recovery", "heliostats", "plan", "diagnosis", "diagnosis_figures", "field", "leave_one_out", "plant",
             "plant_plan", "plant_shared", "plant_flux")
 PLANT_WORST = 20  # heliostats listed in the report's plant section
 ABSENT = '<p class="absent">Not part of this experiment.</p>'
@@ -130,6 +131,30 @@ def _recovery_section(files: dict[str, list[str]]) -> str:
         if not isinstance(data, dict) or "tracking_mrad" not in data:
             raise DataError(f"{path}: not a recovery JSON (written by `helioflow recovery --output`)")
         parts += [f"<h3>{esc(Path(path).stem)}</h3>", nested_tables(data)]
+    return "\n".join(parts)
+
+
+def _heliostats_section(files: dict[str, list[str]]) -> str:
+    """Per real dataset: drt's heliostat, each fitted quantity with its sigma, and the surface map
+    (scoring/fitted_heliostat.py)."""
+    parts = []
+    for path in (p for p in files["heliostats"] if p.endswith(".json")):
+        data = read_json(path)
+        if not isinstance(data, dict) or "frame" not in data:
+            raise DataError(f"{path}: not a fitted heliostat JSON (written by `helioflow fitted-heliostat --output`)")
+        rows = [[f"tracking {k}", "mrad", fixed(v["value"], 3), fixed(v["sigma"], 3), v["determined"]]
+                for k, v in (data.get("tracking_mrad") or {}).items()]
+        if "slope_error_mrad" in data:
+            e = data["slope_error_mrad"]
+            rows.append(["slope error", "mrad", fixed(e["value"], 3), fixed(e["sigma"], 3), e["determined"]])
+        if "canting_mrad" in data:
+            rows.append(["canting (RMS over facets)", "mrad", fixed(data["canting_mrad"]["rms"], 3), "", ""])
+        if "surface" in data:
+            s = data["surface"]
+            rows.append(["surface deviation (RMS)", "mm", fixed(s["rms_mm"], 4), "", s["determined"]])
+        parts += [f"<h3>{esc(Path(path).stem)}</h3>", table(["quantity", "unit", "fitted", "sigma", "determined"], rows),
+                  figure(str(Path(path).with_suffix(".png")), f"{Path(path).stem}: the fitted surface"),
+                  download(path, "application/json")]
     return "\n".join(parts)
 
 
@@ -290,6 +315,7 @@ LAYOUT = (
     ("samples", "Sample grids", ("samples",), _samples_section),
     ("psnr", "PSNR against sun position", ("psnr", "data_efficiency"), _psnr_section),
     ("recovery", "What drt recovered of the true heliostats", ("recovery",), _recovery_section),
+    ("heliostats", "The fitted heliostats", ("heliostats",), _heliostats_section),
     ("plan", "The next calibration images", ("plan",), _plan_section),
     ("diagnosis", "Diagnosis: which effect is missing", ("diagnosis",), diagnosis_section),
     ("ledger", "Error ledger", ("diagnosis",), ledger_section),
