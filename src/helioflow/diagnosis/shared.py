@@ -305,7 +305,7 @@ class PlantFit:
         for label in labels:
             c = self.candidate[label]
             out[c.effect] = dict(c.params)
-        return drt_effects(out, self.members[0].scene.heliostat.n_facets, kinematics_only=True)
+        return drt_effects(out, self.members[0].scene.heliostat.n_facets, freedom="tracking")
 
     def shared_spreads(self, effects: dict) -> list[tuple[str, str]]:
         """The fitted spread scalars of shared effects in an effect list: what the heliostats share."""

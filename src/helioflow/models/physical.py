@@ -27,7 +27,9 @@ from torch import Tensor
 
 from helioflow.checks import check_ranges, check_types
 from helioflow.data.surfaces import read_heliostat
+from helioflow.errors import ConfigError
 from helioflow.models.base import SpotModel, TrainingData
+from helioflow.models.freedom import CHOICES, SELECT_MAX_IMAGES, FreedomChoice, choose_freedom, freedom_levels
 from helioflow.models.physics_fit import FitResult, FitSettings, Measurements, fit_effects, with_uncertainty
 from helioflow.models.uncertainty import FitUncertainty
 from helioflow.physics.effects import FIT, REGISTRY, check_effects
@@ -69,6 +71,9 @@ class PhysicsConfig:
         seed: seeds the facet hops' random blocks.
         gauss_newton_steps: Gauss-Newton steps that end a fit with at most 64 free tensor
             entries (physics_fit module docstring); 0 = none.
+        freedom: what drt frees of the heliostat (models/freedom.py): auto (chosen by
+            leave-one-out over at most freedom.SELECT_MAX_IMAGES training images, else full),
+            design, tracking, canting or full; raytrace fits the configured effects alone.
     """
 
     effects: dict = field(default_factory=dict)
@@ -90,10 +95,13 @@ class PhysicsConfig:
     pinned_hops: int = 0
     seed: int = 0
     gauss_newton_steps: int = 4
+    freedom: str = "auto"
 
     def __post_init__(self):
         check_effects(self.effects, "model.effects", allow_fit=True)
         check_types(self)
+        if self.freedom not in CHOICES:
+            raise ConfigError(f"freedom = {self.freedom!r}: expected one of {', '.join(CHOICES)}")
         check_ranges(self, at_least_one=("fit_steps", "fit_images", "cells_per_side", "rounds", "fit_rays"),
                      counts=("facet_hops", "pinned_hops", "gauss_newton_steps", "seed"),
                      non_negative=("coarse_blur_px",),
@@ -107,19 +115,21 @@ class PhysicsConfig:
                               "gauss_newton_steps": (1000, "each step builds a Jacobian by finite differences")})
 
 
-def drt_effects(effects: dict, n_facets: int, kinematics_only: bool = False) -> dict:
+def drt_effects(effects: dict, n_facets: int, freedom: str = "full") -> dict:
     """The drt effect list: the model's effects plus tracking (all parameters), surface, slope
     error and (for more than one facet) canting marked "fit" where the model does not set them;
-    `kinematics_only`: tracking alone (what the plant fit frees per heliostat, diagnosis/shared.py)."""
+    `freedom` (models/freedom.py FREEDOMS) frees less: design (the effects as they are), tracking
+    (what the plant fit frees per heliostat, diagnosis/shared.py) or canting (tracking and canting)."""
     out = {e: dict(p or {}) for e, p in effects.items()}
+    if freedom == "design":
+        return out
     tracking = out.setdefault("tracking", {})
     for p in REGISTRY["tracking"].parameters:
         tracking.setdefault(p.name, FIT)
-    if kinematics_only:
-        return out
-    out.setdefault("surface", {}).setdefault("control_heights_mm", FIT)
-    out.setdefault("slope_error", {}).setdefault("sigma_mrad", FIT)
-    if n_facets > 1:
+    if freedom == "full":
+        out.setdefault("surface", {}).setdefault("control_heights_mm", FIT)
+        out.setdefault("slope_error", {}).setdefault("sigma_mrad", FIT)
+    if n_facets > 1 and freedom in ("canting", "full"):
         out.setdefault("canting", {}).setdefault("facet_tilts_mrad", FIT)
     return out
 
@@ -140,7 +150,8 @@ class RaytraceModel(SpotModel):
         self.scale = 1.0
         self.curve: list[dict[str, float]] = []
 
-    def effects_to_fit(self, heliostat: Heliostat) -> dict:
+    def effects_to_fit(self, heliostat: Heliostat, measured: Measurements) -> dict:
+        """The effect list the fit frees (`measured`: the training images it is fitted to)."""
         return self.config.effects
 
     def scene(self, fitting: bool = False) -> Scene:
@@ -159,16 +170,29 @@ class RaytraceModel(SpotModel):
         n = len(data)
         index = torch.linspace(0, n - 1, min(n, self.config.fit_images)).round().long()
         measured = Measurements(data.images[index], data.azimuth_deg[index], data.elevation_deg[index], data.scale)
-        c = self.config
-        settings = FitSettings(steps=c.fit_steps, rounds=c.rounds, coarse_blur_px=c.coarse_blur_px,
-                               loss="shape" if c.per_image_normalised else "absolute",
-                               facet_hops=c.facet_hops, pinned_hops=c.pinned_hops, seed=c.seed,
-                               gauss_newton_steps=c.gauss_newton_steps)
-        fitted = fit_effects(self.scene(fitting=True), self.effects_to_fit(self.heliostat), measured,
-                             settings, progress=True, label=f"fit {self.name}", finish=self.scene(),
-                             checkpoint=checkpoint_path)
-        self.fitted = with_uncertainty(self.scene(), fitted, measured, settings.loss)
+        fitted = self.fit(self.effects_to_fit(self.heliostat, measured), measured, progress=True,
+                          checkpoint=checkpoint_path)
+        self.fitted = with_uncertainty(self.scene(), fitted, measured, self.fit_settings().loss)
         self.curve = [{"step": i, "loss": v} for i, v in enumerate(self.fitted.history)]
+
+    def fit_settings(self) -> FitSettings:
+        c = self.config
+        return FitSettings(steps=c.fit_steps, rounds=c.rounds, coarse_blur_px=c.coarse_blur_px,
+                           loss="shape" if c.per_image_normalised else "absolute",
+                           facet_hops=c.facet_hops, pinned_hops=c.pinned_hops, seed=c.seed,
+                           gauss_newton_steps=c.gauss_newton_steps)
+
+    def fit(self, effects: dict, measured: Measurements, start: FitResult | None = None, progress: bool = False,
+            checkpoint: str | os.PathLike | None = None) -> FitResult:
+        """`effects`' "fit" parameters fitted to `measured` (physics_fit.fit_effects; `start`: a
+        nested start), without the covariance."""
+        return fit_effects(self.scene(fitting=True), effects, measured, self.fit_settings(), progress=progress,
+                           label=f"fit {self.name}", finish=self.scene(), checkpoint=checkpoint, start=start)
+
+    def simulate(self, fitted: FitResult, azimuth_deg: Tensor, elevation_deg: Tensor) -> Tensor:
+        """(N,) sun positions (deg) -> (N, H, W) images of a fit, in the fit's units."""
+        return self.scene().simulate(fitted.effects, fitted.tensors, azimuth_deg.float().to(self.device),
+                                     elevation_deg.float().to(self.device), seed=1)
 
     def to_device(self, device: torch.device) -> RaytraceModel:
         """Also moves the design heliostat and the fitted tensors (plain attributes, not buffers)."""
@@ -202,8 +226,7 @@ class RaytraceModel(SpotModel):
     def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor, generator: torch.Generator) -> Tensor:
         """(N,) sun positions (deg) -> (N, H, W) images divided by the training scale (each by its
         own peak first for a per-image normalised dataset)."""
-        images = self.scene().simulate(self.fitted.effects, self.fitted.tensors, azimuth_deg.float().to(self.device),
-                                       elevation_deg.float().to(self.device), seed=1)
+        images = self.simulate(self.fitted, azimuth_deg, elevation_deg)
         if self.config.per_image_normalised:
             images = images / images.amax((-2, -1), keepdim=True).clamp_min(1e-30)
         return images / self.scale
@@ -211,9 +234,35 @@ class RaytraceModel(SpotModel):
 
 class DrtModel(RaytraceModel):
     """Differentiable raytracing: the heliostat's surface, canting, tracking and slope error
-    fitted with the model's effects (see `drt_effects`)."""
+    fitted with the model's effects (see `drt_effects`), as far as the images determine them
+    (config `freedom`, models/freedom.py)."""
 
     name = "drt"
 
-    def effects_to_fit(self, heliostat: Heliostat) -> dict:
-        return drt_effects(self.config.effects, heliostat.n_facets)
+    def __init__(self, config: PhysicsConfig, image_shape: tuple[int, int]):
+        super().__init__(config, image_shape)
+        self.freedom: FreedomChoice | None = None
+
+    def effects_to_fit(self, heliostat: Heliostat, measured: Measurements) -> dict:
+        """The drt effect list at the configured freedom, or at the one `choose_freedom` picks."""
+        effects, facets = self.config.effects, heliostat.n_facets
+        levels = freedom_levels(*(drt_effects(effects, facets, freedom=k) for k in ("design", "tracking")),
+                                drt_effects(effects, facets, freedom="canting") if facets > 1 else None,
+                                drt_effects(effects, facets))
+        n = len(measured.images)
+        if self.config.freedom != "auto":
+            self.freedom = FreedomChoice(self.config.freedom, "set in the config (freedom)")
+        elif n > SELECT_MAX_IMAGES:
+            self.freedom = FreedomChoice("full", f"{n} training images, more than the {SELECT_MAX_IMAGES} up to which "
+                                                 "the freedom is chosen by leave-one-out: everything fitted")
+        else:
+            self.freedom = choose_freedom(levels, measured, lambda e, m, start: self.fit(e, m, start), self.simulate)
+        return levels[self.freedom.chosen]
+
+    def get_extra_state(self) -> dict:
+        return {**super().get_extra_state(), "freedom": None if self.freedom is None else self.freedom.as_json()}
+
+    def set_extra_state(self, state: dict) -> None:
+        super().set_extra_state(state)
+        freedom = state.get("freedom")  # None in a model written before the freedom was chosen
+        self.freedom = None if freedom is None else FreedomChoice.from_json(freedom)

@@ -13,7 +13,9 @@ units a plant engineer reads them in (docs/outputs.md):
   removed: a common tilt is tracking) and the five tracking parameters (mrad), each with sigma;
 - every other fitted scalar (the sun's width, the camera's gain ...) with its sigma;
 - `determined` beside each: false where models/uncertainty.py reports the images do not determine
-  it (its sigma is then an estimate of how far it may be off, not a confidence interval).
+  it (its sigma is then an estimate of how far it may be off, not a confidence interval);
+- `freedom`: what the fit freed and why (models/freedom.py), and `at_design`: what it kept at the
+  design (its prior: a few images did not earn that freedom), which the JSON then leaves out.
 
 Every value is the fit's own (models/uncertainty.py: the sandwich covariance, misfit-inflated).
 """
@@ -43,7 +45,7 @@ def fitted_heliostat(model_path: str | os.PathLike, grid_step_m: float = GRID_ST
     model, info = load_model(model_path)
     fitted = getattr(model, "fitted", None)
     tensors = getattr(fitted, "tensors", None)
-    if not tensors:
+    if not tensors and getattr(model, "freedom", None) is None:
         raise DataError(f"{model_path}: a {info['network']} model has no fitted heliostat tensors to write out "
                         "(only drt fits the heliostat)")
     if grid_step_m <= 0:
@@ -56,9 +58,14 @@ def fitted_heliostat(model_path: str | os.PathLike, grid_step_m: float = GRID_ST
                  "uncertainty": None if u is None else {"misfit": u.as_json()["misfit"],
                                                         "structure": u.as_json()["structure"],
                                                         "method": u.as_json()["method"]}}
+    freedom = getattr(model, "freedom", None)
+    out["freedom"] = None if freedom is None else freedom.as_json()
+    slope = (fitted.effects.get("slope_error") or {}).get("sigma_mrad")
+    has = {"tracking": "tracking" in effective, "canting": "canting" in effective or model.heliostat.n_facets == 1,
+           "surface": "surface" in effective, "slope error": slope is not None}
+    out["at_design"] = [q for q, fitted_here in has.items() if not fitted_here]
     if "surface" in effective:
         out["surface"] = surface_grid(model.heliostat, effective["surface"], u, grid_step_m)
-    slope = (fitted.effects.get("slope_error") or {}).get("sigma_mrad")
     if slope is not None:
         out["slope_error_mrad"] = _scalar(u, "slope_error.sigma_mrad", float(slope))
     if "canting" in effective:
