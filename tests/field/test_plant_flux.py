@@ -15,7 +15,7 @@ from helioflow.data.paint import PROPERTIES_FILE, Tower, read_heliostat_properti
 from helioflow.errors import DataError
 from helioflow.field.plant import compose_plant, map_effects, plant_folders
 from helioflow.models.nearest import Nearest, NearestConfig
-from helioflow.models.physical import DrtModel, PhysicsConfig
+from helioflow.models.physical import DrtConfig, DrtModel
 from helioflow.models.physics_fit import FitResult
 from helioflow.models.registry import save_model
 from helioflow.physics.geometry import normalize
@@ -30,7 +30,7 @@ def _drt(path, tracking_mrad=(0.0,) * 5, slope_mrad=None):
     """A drt model of AA39 (design geometry) whose fit holds these tracking errors and slope error."""
     tower = Tower(PAINT / "tower-measurements.json")
     design, _ = read_heliostat_properties(PAINT / "AA39" / PROPERTIES_FILE, tower)
-    model = DrtModel(PhysicsConfig(effects={"sunshape": {"kind": "pillbox"}}, heliostat_path="AA39.h5"), (32, 32))
+    model = DrtModel(DrtConfig(effects={"sunshape": {"kind": "pillbox"}}, heliostat_path="AA39.h5"), (32, 32))
     model.heliostat = design.to("cpu", torch.float32)
     effects = {"sunshape": {"kind": "pillbox"}}
     if slope_mrad is not None:

@@ -11,7 +11,7 @@ import torch
 from helioflow.data.paint import import_paint
 from helioflow.errors import ConfigError
 from helioflow.models.freedom import FREEDOMS, choose_freedom
-from helioflow.models.physical import PhysicsConfig
+from helioflow.models.physical import DrtConfig
 from helioflow.models.physics_fit import FitResult, Measurements
 from helioflow.models.registry import load_model, train_network
 from helioflow.scoring.fitted_heliostat import fitted_heliostat
@@ -66,7 +66,7 @@ def test_one_training_image_keeps_the_design():
 
 def test_an_unknown_freedom_is_a_config_error():
     with pytest.raises(ConfigError, match="freedom = 'surface': expected one of auto, design, tracking, canting, full"):
-        PhysicsConfig(freedom="surface")
+        DrtConfig(freedom="surface")
 
 
 @pytest.fixture(scope="module")

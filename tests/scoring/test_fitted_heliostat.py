@@ -11,7 +11,7 @@ import torch
 
 from helioflow.cli import main
 from helioflow.errors import DataError
-from helioflow.models.physical import DrtModel, PhysicsConfig, RaytraceModel
+from helioflow.models.physical import DrtConfig, DrtModel, PhysicsConfig, RaytraceModel
 from helioflow.models.physics_fit import FitResult
 from helioflow.models.registry import save_model
 from helioflow.models.uncertainty import FitUncertainty
@@ -78,7 +78,8 @@ def _model_file(path, network=DrtModel, tensors=True):
     """A two-facet model file with known tracking, canting, surface and slope error and a diagonal
     covariance (sigma 0.1 mrad for tracking, 0.2 for the tilts, 0.05 for the slope error)."""
     heliostat = ideal_heliostat(cols=2, width=1.0, height=1.0, gap=0.1, control_points=C)
-    model = network(PhysicsConfig(effects={"sunshape": {"kind": "pillbox"}}), (16, 16))
+    config = (DrtConfig if network is DrtModel else PhysicsConfig)(effects={"sunshape": {"kind": "pillbox"}})
+    model = network(config, (16, 16))
     model.heliostat = heliostat
     tracking = torch.tensor([0.5, -1.0, 0.2, 0.0, 0.3])
     canting = torch.tensor([[1.0, -0.5], [-1.0, 0.5]])  # mean zero: as the heliostat takes it

@@ -14,7 +14,7 @@ from helioflow.data.surfaces import HeliostatSpec, read_heliostat, true_heliosta
 from helioflow.data.synthetic import trace_dataset
 from helioflow.errors import DataError
 from helioflow.models.nearest import Nearest, NearestConfig
-from helioflow.models.physical import DrtModel, PhysicsConfig
+from helioflow.models.physical import DrtConfig, DrtModel
 from helioflow.models.physics_fit import FitResult
 from helioflow.models.registry import dataset_geometry, save_model
 from helioflow.scoring.recovery import recovery
@@ -45,7 +45,7 @@ def _drt_file(path, files, tracking_offset_mrad: float, surface_factor: float = 
     heliostat_path, dataset_path = files
     true = read_heliostat(heliostat_path)
     ds = read_dataset(dataset_path)
-    model = DrtModel(PhysicsConfig(effects={"sunshape": {"kind": "pillbox"}}, heliostat_path=str(heliostat_path),
+    model = DrtModel(DrtConfig(effects={"sunshape": {"kind": "pillbox"}}, heliostat_path=str(heliostat_path),
                                    cells_per_side=8, **dataset_geometry("drt", ds.attrs)), tuple(ds.images.shape[1:]))
     model.heliostat = true.ideal().to("cpu")
     tracking = (true.tracking_error * 1e3).float()

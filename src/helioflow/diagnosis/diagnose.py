@@ -359,12 +359,15 @@ class Diagnosis:
         if c.neutral is None or self.error(key) >= self.error(rest):
             return None
         fit = self.with_covariance(key)
-        at = self._indices(fit, label) if fit is not None else []
+        u = None if fit is None else fit.uncertainty
+        # the change's own parameters: a tensor's entries (do nothing: 0) and the scalars it moves from a
+        # number; one the model fits as well ("fit" in `neutral`: the camera's gain beside its blur) is no part of it
+        neutral = {k: 0.0 if "[" in u.names[k] else c.neutral.get(u.names[k].split(".", 1)[1], 0.0)
+                   for k in (self._indices(fit, label) if fit is not None else [])}
+        at = [k for k, v in neutral.items() if isinstance(v, (int, float)) and not isinstance(v, bool)]
         if not at:
             return None
-        u = fit.uncertainty
-        d = u.values[at] - np.array([float(c.neutral.get(u.names[k].split(".", 1)[1], 0.0)) if "[" not in u.names[k]
-                                     else 0.0 for k in at])
+        d = u.values[at] - np.array([float(neutral[k]) for k in at])
         covariance = u.statistical[np.ix_(at, at)]  # not what unfound facets may do: that scales with the value
         dof = int(np.linalg.matrix_rank(covariance))
         if dof == 0:

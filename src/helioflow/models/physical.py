@@ -71,9 +71,6 @@ class PhysicsConfig:
         seed: seeds the facet hops' random blocks.
         gauss_newton_steps: Gauss-Newton steps that end a fit with at most 64 free tensor
             entries (physics_fit module docstring); 0 = none.
-        freedom: what drt frees of the heliostat (models/freedom.py): auto (chosen by
-            leave-one-out over at most freedom.SELECT_MAX_IMAGES training images, else full),
-            design, tracking, canting or full; raytrace fits the configured effects alone.
     """
 
     effects: dict = field(default_factory=dict)
@@ -95,13 +92,10 @@ class PhysicsConfig:
     pinned_hops: int = 0
     seed: int = 0
     gauss_newton_steps: int = 4
-    freedom: str = "auto"
 
     def __post_init__(self):
         check_effects(self.effects, "model.effects", allow_fit=True)
         check_types(self)
-        if self.freedom not in CHOICES:
-            raise ConfigError(f"freedom = {self.freedom!r}: expected one of {', '.join(CHOICES)}")
         check_ranges(self, at_least_one=("fit_steps", "fit_images", "cells_per_side", "rounds", "fit_rays"),
                      counts=("facet_hops", "pinned_hops", "gauss_newton_steps", "seed"),
                      non_negative=("coarse_blur_px",),
@@ -113,6 +107,24 @@ class PhysicsConfig:
                               "facet_hops": (1000, "every hop is a fit of its own"),
                               "pinned_hops": (1000, "every hop is a fit of its own"),
                               "gauss_newton_steps": (1000, "each step builds a Jacobian by finite differences")})
+
+
+@dataclass(frozen=True)
+class DrtConfig(PhysicsConfig):
+    """Settings of drt: those of a physics model, and
+
+    Attributes:
+        freedom: what drt frees of the heliostat (models/freedom.py): auto (chosen by
+            leave-one-out over at most freedom.SELECT_MAX_IMAGES training images, else full),
+            design, tracking, canting or full.
+    """
+
+    freedom: str = "auto"
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.freedom not in CHOICES:
+            raise ConfigError(f"freedom = {self.freedom!r}: expected one of {', '.join(CHOICES)}")
 
 
 def drt_effects(effects: dict, n_facets: int, freedom: str = "full") -> dict:
@@ -239,7 +251,7 @@ class DrtModel(RaytraceModel):
 
     name = "drt"
 
-    def __init__(self, config: PhysicsConfig, image_shape: tuple[int, int]):
+    def __init__(self, config: DrtConfig, image_shape: tuple[int, int]):
         super().__init__(config, image_shape)
         self.freedom: FreedomChoice | None = None
 

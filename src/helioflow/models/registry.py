@@ -27,7 +27,7 @@ NETWORKS = {
     "cgan": ("helioflow.models.cgan", "CganConfig", "ConditionalGAN"),
     "nerf": ("helioflow.models.nerf", "NerfConfig", "SpotNeRF"),
     "raytrace": ("helioflow.models.physical", "PhysicsConfig", "RaytraceModel"),
-    "drt": ("helioflow.models.physical", "PhysicsConfig", "DrtModel"),
+    "drt": ("helioflow.models.physical", "DrtConfig", "DrtModel"),
 }
 LOOP_KEYS = ("steps", "batch_size", "checkpoint_every")
 MODEL_FORMAT = "helioflow.model/1"
