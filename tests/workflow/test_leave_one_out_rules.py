@@ -121,8 +121,13 @@ def test_the_paint_aa39_variant_validates_over_the_default_config_and_runs_folds
     assert all(ds["paint_dir"] == "tests/data/paint" for ds in config["datasets"].values())
 
 
-def test_the_paint_aa31_variant_validates_over_the_default_config():
-    config = _layered("paint_aa31.yaml")
-    assert config["experiment"] == "paint_aa31" and "field" not in config
-    assert {ds["heliostat"] for ds in config["datasets"].values()} == {"AA31"}
-    assert set(config["networks"]) == {"raytrace", "drt"}
+def test_the_paint_heliostats_variant_takes_every_real_heliostat_with_two_images_on_a_target():
+    config = _layered("paint_heliostats.yaml")
+    assert config["experiment"] == "paint_heliostats" and "field" not in config
+    groups = leave_one_out_groups(config)
+    assert {g: len(f) for g, f in groups.items()} == {"aa39": 7, "aa39_lower": 5, "aa31_lower": 4, "aa31": 2,
+                                                     "ad37_upper": 3, "ad37": 2, "au46_lower": 5}
+    assert {config["datasets"][g]["heliostat"] for g in groups} == {"AA39", "AA31", "AD37", "AU46"}
+    r = "results/paint_heliostats"
+    assert report_inputs(config)["diagnosis"] == [f"{r}/diagnosis/{g}.json" for g in groups]  # the whole ones
+    assert report_inputs(config)["heliostats"][::2] == [f"{r}/heliostats/{g}.json" for g in groups]
