@@ -38,7 +38,7 @@ def _floor(diagnosis: dict, azimuth: float, elevation: float) -> float | None:
     """The diagnosis' per-image noise floor of the image at that sun position (None if absent)."""
     per = diagnosis["signatures"]["per_image"]
     for a, e, floor in zip(per["azimuth_deg"], per["elevation_deg"], per["noise_floor"]):
-        if abs(a - azimuth) < 1e-6 and abs(e - elevation) < 1e-6:
+        if abs(a - azimuth) < 1e-3 and abs(e - elevation) < 1e-3:  # the CSV keeps 4 decimals
             return float(floor)
     return None
 

@@ -98,18 +98,22 @@ def plot_surface(result: dict, path: str | os.PathLike) -> None:
     from helioflow.plotting import plt, save_figure
 
     surface = result.get("surface")
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5), layout="constrained")
     for ax, key, label in zip(axes, ("deviation_mm", "sigma_mm"), ("deviation from the design (mm)", "sigma (mm)")):
         values = None if surface is None or surface.get(key) is None else np.array(surface[key], dtype=float)
         if values is None:
             ax.axis("off")
             continue
         x, y, half = surface["x_m"], surface["y_m"], surface["grid_step_m"] / 2
-        limit = np.nanmax(np.abs(values)) if key == "deviation_mm" else None
-        image = ax.imshow(values, extent=(x[0] - half, x[-1] + half, y[-1] - half, y[0] + half),
-                          cmap="RdBu_r" if limit is not None else "viridis",
-                          vmin=-limit if limit else None, vmax=limit)
-        fig.colorbar(image, ax=ax, label=label)
+        extent = (x[0] - half, x[-1] + half, y[-1] - half, y[0] + half)
+        if key == "deviation_mm":
+            limit = float(np.nanmax(np.abs(values))) or 1.0
+            image = ax.imshow(values, extent=extent, cmap="RdBu_r", vmin=-limit, vmax=limit)
+        else:  # a few points at a facet's corner may carry most of it: the colours end at the 95th percentile
+            image = ax.imshow(values, extent=extent, cmap="viridis", vmin=0.0,
+                              vmax=float(np.nanpercentile(values, 95)) or 1.0)
+            label += f", colours to the 95th percentile (largest {np.nanmax(values):.2g})"
+        fig.colorbar(image, ax=ax, label=label, shrink=0.8)
         ax.set_xlabel("right (m)")
         ax.set_ylabel("up (m)")
     fig.suptitle(_summary(result), fontsize=9)
@@ -124,13 +128,16 @@ def _summary(result: dict) -> str:
 
     lines = []
     if "tracking_mrad" in result:
-        lines.append("tracking (mrad): " + ", ".join(f"{k} {pm(v)}" for k, v in result["tracking_mrad"].items()))
+        items = [f"{k} {pm(v)}" for k, v in result["tracking_mrad"].items()]
+        lines += ["tracking (mrad): " + ", ".join(items[:3]), ", ".join(items[3:])]
     if "canting_mrad" in result:
         lines.append(f"canting RMS {result['canting_mrad']['rms']:.2f} mrad")
     if "slope_error_mrad" in result:
         lines.append(f"slope error {pm(result['slope_error_mrad'])} mrad")
     if "surface" in result:
         lines.append(f"surface RMS {result['surface']['rms_mm']:.3f} mm")
+    if result.get("at_design"):
+        lines.append("at the design (not determined by the images): " + ", ".join(result["at_design"]))
     return "\n".join(lines)
 
 
