@@ -307,8 +307,9 @@ def test_an_images_dataset_validates_and_gets_its_own_rules(folder):
 def test_leave_one_out_of_own_images_makes_a_fold_per_image_sharing_one_heliostat(folder):
     config = expand_config(validate_config(_config(folder, holdout="leave_one_out")))
     folds = [f"own_loo_spot_{i}" for i in range(6)]
-    assert images_datasets(config) == folds and images_heliostats(config) == ["own"]
+    assert images_datasets(config) == ["own", *folds] and images_heliostats(config) == ["own"]  # the whole one too
     assert import_images_params(config, folds[2])["holdout"] == ["spot_2"]
+    assert import_images_params(config, "own")["holdout"] == []  # every image trains: the calibration
 
 
 @pytest.mark.parametrize("edit, message", [

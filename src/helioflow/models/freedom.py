@@ -1,14 +1,13 @@
 """How much of the heliostat a handful of images determine: drt's freedom, chosen by leave-one-out
 over its own training images.
 
-On a few real images a fit of everything runs away: three images of AA39 pull the tracking 21 mrad
-from the design and predict the held-out image worse than the ideal heliostat does
-(docs/journal/2026-12-02-few-image-fits.md). The pixels do not stop it (their residual is smooth
-over the spot, so its independent pixels are far fewer than its pixels, and a prior weighted by
-the pixel count is negligible), and a design prior applied after the fit broke the spots it did not
-need to touch. What does decide it is the question the user asks: does the freer fit predict an
-image it was not fitted to better? So the freedom is chosen as a model is chosen by
-cross-validation:
+On a few real images a fit of everything can run away: the kinematics and the surface take up what
+the model lacks and predict a held-out image worse than the ideal heliostat does. The pixels do not
+stop it (a real residual is smooth over the spot, so its independent pixels are far fewer than its
+pixels, and a prior weighted by the pixel count is negligible), and a design prior applied after the
+fit moved what it did not need to touch (docs/journal/2026-12-02-few-image-fits.md). What does decide
+it is the question the user asks: does the freer fit predict an image it was not fitted to better?
+So the freedom is chosen as a model is chosen by cross-validation:
 
 - the nested levels: `design` (the configured model's own fit: sun, camera; the heliostat as
   designed), `tracking` (+ the five kinematic errors), `canting` (+ the facets' tilts, heliostats
@@ -23,8 +22,8 @@ cross-validation:
 
 What is not fitted stays at the design: its value is the prior, and the written heliostat says so
 (scoring/fitted_heliostat.py). The levels cost one fit each per training image, so `auto` chooses
-only up to SELECT_MAX_IMAGES training images; with more, everything is fitted (on six or more
-images of AA39 drt beats the ideal heliostat on every fold, docs/results.md).
+only up to SELECT_MAX_IMAGES training images; with more, everything is fitted (docs/results.md,
+"drt on real images": where the images are that many, the full fit beats the ideal heliostat).
 """
 
 from __future__ import annotations
