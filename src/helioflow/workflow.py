@@ -169,7 +169,7 @@ def name_pattern(names: list[str]) -> str:
 def centroid_datasets(config: dict) -> list[str]:
     """The PAINT datasets whose centroid check (rule paint_centroids) the report shows: every one
     but the leave-one-out folds (the whole dataset holds their images)."""
-    folds = {f for group in leave_one_out_groups(config).values() for f in group}
+    folds = fold_datasets(config)
     return [d for d in paint_datasets(config) if d not in folds]
 
 
@@ -404,7 +404,7 @@ def diagnosis_paths(config: dict) -> list[str]:
     of a leave-one-out dataset the whole one only (every image), not its folds."""
     if "diagnosis" not in config:
         return []
-    folds = {f for group in leave_one_out_groups(config).values() for f in group}
+    folds = fold_datasets(config)
     return [f"{results_dir(config)}/diagnosis/{d}.json" for d in network_datasets(config) if d not in folds]
 
 
@@ -414,8 +414,7 @@ def fitted_heliostat_paths(config: dict) -> list[str]:
     its folds; of a plant none (its table holds each heliostat's fit)."""
     if "drt" not in (config.get("networks") or {}):
         return []
-    skip = {f for group in leave_one_out_groups(config).values() for f in group}
-    skip |= {d for members in plant_groups(config).values() for d in members}
+    skip = fold_datasets(config) | {d for members in plant_groups(config).values() for d in members}
     imported = set(paint_datasets(config)) | set(images_datasets(config))
     return [f"{results_dir(config)}/heliostats/{d}.{kind}" for d in network_datasets(config)
             if d in imported and d not in skip for kind in ("json", "png")]
@@ -1072,6 +1071,11 @@ def leave_one_out_groups(config: dict) -> dict[str, list[str]]:
         if FOLD_KEY in ds:
             groups.setdefault(ds[FOLD_KEY], []).append(name)
     return groups
+
+
+def fold_datasets(config: dict) -> set[str]:
+    """Every leave-one-out fold dataset of an expanded config (not the datasets they are folds of)."""
+    return {f for group in leave_one_out_groups(config).values() for f in group}
 
 
 def leave_one_out_inputs(config: dict, group: str) -> dict[str, list[str]]:

@@ -69,20 +69,13 @@ class FreedomChoice:
         return cls(data["chosen"], data["reason"], {k: list(v) for k, v in data["held_out_misplaced_flux"].items()})
 
 
-def freedom_levels(design: dict, tracking: dict, canting: dict | None, full: dict) -> dict[str, dict]:
-    """{level: effect list} in FREEDOMS order; `canting` None (one facet: its tilt is tracking) leaves
-    that level out."""
-    levels = {"design": design, "tracking": tracking, "canting": canting, "full": full}
-    return {k: v for k, v in levels.items() if v is not None}
-
-
 def choose_freedom(levels: dict[str, dict], data: Measurements,
                    fit: Callable[[dict, Measurements, FitResult | None], FitResult],
                    predict: Callable[[FitResult, Tensor, Tensor], Tensor]) -> FreedomChoice:
     """The freedom of the module docstring.
 
     Args:
-        levels: {level: effect list}, simplest first (freedom_levels).
+        levels: {level: effect list}, simplest first (FREEDOMS order).
         data: the N training images (N, H, W) and their sun positions (N,) deg.
         fit: (effects, measurements, start) -> the fit of those effects (start: the nested start).
         predict: (fit, azimuth (K,), elevation (K,)) -> (K, H, W) predicted images.

@@ -29,7 +29,7 @@ from helioflow.checks import check_ranges, check_types
 from helioflow.data.surfaces import read_heliostat
 from helioflow.errors import ConfigError
 from helioflow.models.base import SpotModel, TrainingData
-from helioflow.models.freedom import CHOICES, SELECT_MAX_IMAGES, FreedomChoice, choose_freedom, freedom_levels
+from helioflow.models.freedom import CHOICES, FREEDOMS, SELECT_MAX_IMAGES, FreedomChoice, choose_freedom
 from helioflow.models.physics_fit import FitResult, FitSettings, Measurements, fit_effects, with_uncertainty
 from helioflow.models.uncertainty import FitUncertainty
 from helioflow.physics.effects import FIT, REGISTRY, check_effects
@@ -257,10 +257,9 @@ class DrtModel(RaytraceModel):
 
     def effects_to_fit(self, heliostat: Heliostat, measured: Measurements) -> dict:
         """The drt effect list at the configured freedom, or at the one `choose_freedom` picks."""
-        effects, facets = self.config.effects, heliostat.n_facets
-        levels = freedom_levels(*(drt_effects(effects, facets, freedom=k) for k in ("design", "tracking")),
-                                drt_effects(effects, facets, freedom="canting") if facets > 1 else None,
-                                drt_effects(effects, facets))
+        facets = heliostat.n_facets
+        levels = {k: drt_effects(self.config.effects, facets, freedom=k) for k in FREEDOMS
+                  if k != "canting" or facets > 1}  # one facet: its tilt is tracking
         n = len(measured.images)
         if self.config.freedom != "auto":
             self.freedom = FreedomChoice(self.config.freedom, "set in the config (freedom)")

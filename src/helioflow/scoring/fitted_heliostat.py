@@ -51,13 +51,12 @@ def fitted_heliostat(model_path: str | os.PathLike, grid_step_m: float = GRID_ST
     if grid_step_m <= 0:
         raise DataError(f"grid_step_m = {grid_step_m}: expected a positive spacing in metres")
     u = fitted.uncertainty
+    summary = None if u is None else u.as_json()  # every scalar with sigma, the misfit, the method
     effective = {k: TENSOR_EFFECTS[k].effective(v.detach().cpu().double()) for k, v in tensors.items()}
     out: dict = {"model": str(model_path), "network": info["network"],
                  "frame": "heliostat frame: x right, y up as seen facing the mirror at rest (east, up), m; "
                           "origin the concentrator centre",
-                 "uncertainty": None if u is None else {"misfit": u.as_json()["misfit"],
-                                                        "structure": u.as_json()["structure"],
-                                                        "method": u.as_json()["method"]}}
+                 "uncertainty": None if summary is None else {k: summary[k] for k in ("misfit", "structure", "method")}}
     freedom = getattr(model, "freedom", None)
     out["freedom"] = None if freedom is None else freedom.as_json()
     slope = (fitted.effects.get("slope_error") or {}).get("sigma_mrad")
@@ -76,7 +75,7 @@ def fitted_heliostat(model_path: str | os.PathLike, grid_step_m: float = GRID_ST
                                 for p, v in zip(TRACKING, effective["tracking"].tolist())}
     if u is not None:
         listed = {"slope_error.sigma_mrad", *(f"tracking.{p.name}" for p in TRACKING)}
-        out["other_fitted"] = {k: v for k, v in u.as_json()["scalars"].items() if k not in listed}
+        out["other_fitted"] = {k: v for k, v in summary["scalars"].items() if k not in listed}
     return out
 
 
@@ -135,7 +134,9 @@ def _summary(result: dict) -> str:
     if "slope_error_mrad" in result:
         lines.append(f"slope error {pm(result['slope_error_mrad'])} mrad")
     if "surface" in result:
-        lines.append(f"surface RMS {result['surface']['rms_mm']:.3f} mm")
+        surface = result["surface"]
+        lines.append(f"surface RMS {surface['rms_mm']:.3f} mm" + (
+            f", not determined on facets {surface['not_determined_facets']}" if surface["not_determined_facets"] else ""))
     if result.get("at_design"):
         lines.append("at the design (not determined by the images): " + ", ".join(result["at_design"]))
     return "\n".join(lines)
