@@ -56,7 +56,7 @@ from helioflow.models.planning import image_information, plan  # noqa: E402
 from helioflow.models.uncertainty import Z95, end_state  # noqa: E402
 from helioflow.physics.effects import REGISTRY  # noqa: E402
 from helioflow.physics.scene import dataset_scene  # noqa: E402
-from helioflow.scoring.metrics import misplaced_flux  # noqa: E402
+from helioflow.physics.scene import misplaced_flux  # noqa: E402
 
 TAKEN, CANDIDATES, HELD_OUT, ADDED, RAYS = 8, 24, 8, 4, 400_000
 RANDOM_DRAWS = 3  # random picks: the mean over this many draws

@@ -30,7 +30,7 @@ from helioflow.data.hdf5 import read_dataset  # noqa: E402
 from helioflow.data.paint import import_paint  # noqa: E402
 from helioflow.data.surfaces import read_heliostat  # noqa: E402
 from helioflow.physics.scene import dataset_scene  # noqa: E402
-from helioflow.scoring.metrics import misplaced_flux  # noqa: E402
+from helioflow.physics.scene import misplaced_flux  # noqa: E402
 from helioflow.workflow import DIAGNOSIS_DEFAULTS  # noqa: E402
 
 FEW, MANY = 400_000, 8_000_000

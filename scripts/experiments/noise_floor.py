@@ -27,7 +27,7 @@ from test_noise import CAMERAS, blurred, counted, eight_bit, spots  # noqa: E402
 
 from helioflow.data.noise import measure_noise  # noqa: E402
 from helioflow.diagnosis.noise import measured_noise, noise_floor  # noqa: E402
-from helioflow.scoring.metrics import misplaced_flux  # noqa: E402
+from helioflow.physics.scene import misplaced_flux  # noqa: E402
 
 BEYOND = {  # noise blurred over more than the floor can see: its power lies where the spot's does
     "blurred 2 px, 8-bit": (lambda x: blurred(x, 2.0), True),

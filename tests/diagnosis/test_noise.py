@@ -8,7 +8,7 @@ from scipy.ndimage import gaussian_filter, map_coordinates
 
 from helioflow.data.noise import measure_noise, residual_noise
 from helioflow.diagnosis.noise import measured_noise, noise_floor
-from helioflow.scoring.metrics import misplaced_flux
+from helioflow.physics.scene import misplaced_flux
 
 SIDE = 64
 

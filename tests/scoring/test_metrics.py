@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 import torch
 
+from helioflow.physics.scene import misplaced_flux
 from helioflow.scoring.metrics import (
     PSNR_MAX_DB,
     centroid_error_mrad,
     centroid_px,
     flux_accuracy,
     image_metrics,
-    misplaced_flux,
     psnr,
     ssim,
 )

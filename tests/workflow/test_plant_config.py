@@ -54,7 +54,9 @@ def test_leave_one_out_splits_each_heliostat_of_the_plant():
     groups = leave_one_out_groups(config)
     assert sorted(groups) == ["jul_AA31", "jul_AC43"] and [len(groups[g]) for g in sorted(groups)] == [7, 2]
     assert all(config["datasets"][f][FOLD_KEY] == "jul_AA31" for f in groups["jul_AA31"])
-    assert plant_groups(config) == {}  # the folds stand in for the heliostats' datasets
+    # each heliostat's whole dataset (every image: its calibration) stays in the plant; the folds score it
+    assert plant_groups(config) == {"jul": ["jul_AA31", "jul_AC43"]}
+    assert not any(FOLD_KEY in config["datasets"][d] for d in plant_groups(config)["jul"])
 
 
 def test_a_plant_entry_without_heliostats_is_the_single_heliostat_entry_as_before():

@@ -76,8 +76,7 @@ from helioflow.models.physics_fit import (
 from helioflow.models.planning import canonical_correlation, image_information, plan
 from helioflow.models.uncertainty import end_state
 from helioflow.physics.effects import FIT, REGISTRY, fitted_parameters
-from helioflow.physics.scene import Scene, dataset_scene
-from helioflow.scoring.metrics import misplaced_flux
+from helioflow.physics.scene import Scene, dataset_scene, misplaced_flux
 
 log = logging.getLogger(__name__)
 

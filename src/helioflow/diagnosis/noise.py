@@ -26,7 +26,7 @@ import torch
 from torch import Tensor
 
 from helioflow.data.noise import NoiseModel, measure_noise, residual_noise
-from helioflow.scoring.metrics import misplaced_flux
+from helioflow.physics.scene import misplaced_flux
 
 DRAWS = 16  # bootstrap draws per image
 

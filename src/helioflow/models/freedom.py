@@ -35,7 +35,7 @@ import numpy as np
 from torch import Tensor
 
 from helioflow.models.physics_fit import FitResult, Measurements
-from helioflow.scoring.metrics import misplaced_flux
+from helioflow.physics.scene import misplaced_flux
 
 FREEDOMS = ("design", "tracking", "canting", "full")  # nested: each frees more of the heliostat
 CHOICES = ("auto", *FREEDOMS)

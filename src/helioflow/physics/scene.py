@@ -203,3 +203,13 @@ def normalised(images: Tensor, loss: str, scale: float, lost: Tensor | None = No
     if lost is not None:
         total = total + lost[:, None, None]
     return images / total.clamp_min(1e-30) * n
+
+
+def misplaced_flux(pred: Tensor, meas: Tensor, lost: Tensor | None = None) -> Tensor:
+    """(N, H, W) predicted and measured images -> (N,) misplaced flux fraction: half the L1
+    distance between the two images each divided by its own sum, so 0 for the same shape at any
+    scale and 1 for spots that do not overlap. `lost` (N,): predicted flux that missed the image
+    (physics.scene.Scene.simulate), misplaced too. The diagnosis' error measure."""
+    p = normalised(pred.double(), "shape", 1.0, None if lost is None else lost.double())
+    m = normalised(meas.double(), "shape", 1.0)
+    return 0.5 * (p - m).abs().mean((-2, -1))

@@ -150,7 +150,8 @@ def surface_grid(heliostat: Heliostat, heights_mm: torch.Tensor, uncertainty: Fi
         heliostat: the design geometry (facet_translation (F, 3), facet_size (F, 2), m).
         heights_mm: (F, C, C) control heights as the heliostat takes them (mm), rows along up (top
             first), columns along right (physics.heliostat.deformation).
-        uncertainty: the fit's covariance over "surface.control_heights_mm[f, i, j]" (None: no sigma).
+        uncertainty: the fit's covariance over "surface.control_heights_mm[f, i, j]" (None, or
+            one without those entries: sigma_mm None and determined false).
     Returns:
         x_m (X,), y_m (Y,, top first), deviation_mm and sigma_mm (Y, X) with null off the facets,
         facet (Y, X) index (-1 off the facets), rms_mm over the facets, not_determined_facets.
@@ -189,10 +190,10 @@ def surface_grid(heliostat: Heliostat, heights_mm: torch.Tensor, uncertainty: Fi
                 not_determined.append(f)
     on = facet >= 0
     return {"grid_step_m": step_m, "x_m": _rounded(x), "y_m": _rounded(y),
-            "deviation_mm": _rounded(deviation), "sigma_mm": None if uncertainty is None else _rounded(sigma),
+            "deviation_mm": _rounded(deviation), "sigma_mm": None if np.isnan(sigma).all() else _rounded(sigma),
             "facet": facet.tolist(), "rms_mm": round(float(np.sqrt(np.mean(deviation[on] ** 2))), 5),
             "not_determined_facets": not_determined,
-            "determined": uncertainty is not None and not not_determined}
+            "determined": not np.isnan(sigma).all() and not not_determined}
 
 
 def _axis(low: float, high: float, step: float) -> np.ndarray:

@@ -4,7 +4,7 @@ A PAINT dataset with ``holdout: leave_one_out`` becomes one dataset per measurem
 (``<name>_loo_<id>``, see helioflow.workflow.expand_leave_one_out), and every network is trained
 on each fold with that one image held out. This collects, per held-out image and network, the
 scores the `evaluate` rule wrote for it (PSNR, SSIM, centroid error in mrad, flux accuracy) and
-adds the scale-free misplaced flux fraction (helioflow.scoring.metrics.misplaced_flux: half the
+adds the scale-free misplaced flux fraction (helioflow.physics.scene.misplaced_flux: half the
 L1 distance of the two images each divided by its own sum), then draws the held-out images
 measured and predicted by every network.
 """
@@ -21,8 +21,8 @@ import torch
 from helioflow.data.hdf5 import read_dataset
 from helioflow.errors import DataError
 from helioflow.io import write_text_atomic
+from helioflow.physics.scene import misplaced_flux
 from helioflow.plotting import plt, save_figure
-from helioflow.scoring.metrics import misplaced_flux
 
 SCORES = ("psnr", "ssim", "centroid_mrad", "flux_accuracy")
 COLUMNS = ("dataset", "id", "azimuth_deg", "elevation_deg", "split", "network", *SCORES, "misplaced_flux")

@@ -1,4 +1,5 @@
-"""Image metrics of predicted against measured focal spots (numpy; the misplaced flux in torch).
+"""Image metrics of predicted against measured focal spots (numpy; the misplaced flux, in torch, is
+physics.scene.misplaced_flux: the models choose their freedom by it too).
 
 Conventions shared by every function here:
 
@@ -19,9 +20,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 from skimage.metrics import structural_similarity
-from torch import Tensor
 
-from helioflow.physics.scene import normalised
 from helioflow.physics.target import pixel_centroid
 
 PSNR_MAX_DB = 100.0
@@ -146,13 +145,3 @@ def image_metrics(pred, meas, pixel_size_m, slant_range_m: float) -> dict[str, n
         "centroid_mrad": centroid_error_mrad(pred, meas, pixel_size_m, slant_range_m),
         "flux_accuracy": flux_accuracy(pred, meas),
     }
-
-
-def misplaced_flux(pred: Tensor, meas: Tensor, lost: Tensor | None = None) -> Tensor:
-    """(N, H, W) predicted and measured images -> (N,) misplaced flux fraction: half the L1
-    distance between the two images each divided by its own sum, so 0 for the same shape at any
-    scale and 1 for spots that do not overlap. `lost` (N,): predicted flux that missed the image
-    (physics.scene.Scene.simulate), misplaced too. The diagnosis' error measure."""
-    p = normalised(pred.double(), "shape", 1.0, None if lost is None else lost.double())
-    m = normalised(meas.double(), "shape", 1.0)
-    return 0.5 * (p - m).abs().mean((-2, -1))
