@@ -4,7 +4,7 @@ with nothing hidden and noise that is not white, and the power on small effects.
     python scripts/experiments/error_rates.py [--seeds 20] [--cases blurred rectified white canting tracking slope]
 
 Each seed: a PAINT folder of AA39 (24 images of 400 000 rays, 8-bit, 6 held out) made by the
-independent Monte Carlo of tests/paint_world.py under the Gaussian sun the model believes,
+independent Monte Carlo of tests/support/paint_world.py under the Gaussian sun the model believes,
 imported and diagnosed as tests/diagnosis/test_diagnose_independent.py does (max_effects 1).
 
 - Nothing hidden but the camera's way of writing the image: `blurred`, a 1.5 px blur after the
@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
-from paint_world import World, write_paint_folder  # noqa: E402
+from support.paint_world import World, write_paint_folder  # noqa: E402
 
 from helioflow.data.paint import import_paint  # noqa: E402
 from helioflow.diagnosis.diagnose import diagnose_dataset  # noqa: E402

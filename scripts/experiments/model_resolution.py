@@ -5,7 +5,7 @@ MODEL_RESOLUTION; docs/diagnosis.md, "False alarms").
     python scripts/experiments/model_resolution.py [--seeds 2] [--images 12]
 
 Per camera (as counted, blurred 1.5 px after the counting, rectified) and seed: PAINT folders of
-AA39 from tests/paint_world.py with nothing hidden, once at 400 000 rays per image and once at
+AA39 from tests/support/paint_world.py with nothing hidden, once at 400 000 rays per image and once at
 8 000 000 (8-bit both), imported; the model (the ideal heliostat under the world's Gaussian sun,
 the camera's blur where it has one) traced on the diagnosis' fit scene and on one with twice the
 cells and eight times the rays. The 8M images keep 1/sqrt(20) of the 400k images' noise, so the
@@ -24,7 +24,7 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
-from paint_world import World, write_paint_folder  # noqa: E402
+from support.paint_world import World, write_paint_folder  # noqa: E402
 
 from helioflow.data.hdf5 import read_dataset  # noqa: E402
 from helioflow.data.paint import import_paint  # noqa: E402

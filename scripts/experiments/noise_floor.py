@@ -4,7 +4,7 @@ model gets, over seeds (docs/diagnosis.md, "The noise floor").
     python scripts/experiments/noise_floor.py [--seeds 20]
 
 Spots: 12 Gaussians of 3-6 px per seed on 64 x 64 images, photon noise of 300 photons at the peak,
-then each camera of tests/diagnosis/test_noise.py (blur after the counting, rectification, 8-bit)
+then each camera of tests/support/noise_images.py (blur after the counting, rectification, 8-bit)
 and two blurs beyond what the floor can see (2 and 3 px).
 Printed per camera: the floor over the perfect model's error (mean, min - max over seeds) for the
 images' own operator (`measure_noise`, model-free, white) and for the diagnosis' estimate
@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "diagnosis"))
-from test_noise import CAMERAS, blurred, counted, eight_bit, spots  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))  # support.noise_images
+from support.noise_images import CAMERAS, blurred, counted, eight_bit, spots  # noqa: E402
 
 from helioflow.data.noise import measure_noise  # noqa: E402
 from helioflow.diagnosis.noise import measured_noise, noise_floor  # noqa: E402

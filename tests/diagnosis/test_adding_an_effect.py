@@ -1,7 +1,7 @@
 """The worked example of docs/adding_an_effect.md: soiling that grows down the mirror, an effect the
 registry lacked until physics/effects/soiling.py was added as one module.
 
-On independent images that hide it (tests/paint_world.py: the real AA39 at the Jülich tower, 8-bit,
+On independent images that hide it (tests/support/paint_world.py: the real AA39 at the Jülich tower, 8-bit,
 a quarter held out, the mirror's bottom edge reflecting 50 % less than its top edge):
 
 - revision 1, the registry as it was before the module (monkeypatched without it): the verdict
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from paint_world import World, write_paint_folder
+from support.paint_world import World, write_paint_folder
 
 from helioflow.data.paint import import_paint
 from helioflow.diagnosis.diagnose import diagnose_dataset

@@ -1,5 +1,5 @@
 """The diagnosis on data it was not made for: PAINT folders of the real AA39 heliostat at the Jülich
-upper target, made by an independent numpy Monte Carlo (tests/paint_world.py: its own kinematics,
+upper target, made by an independent numpy Monte Carlo (tests/support/paint_world.py: its own kinematics,
 sun sampling, reflection and camera), 8-bit PNGs imported with `source: paint`, a quarter of the
 images held out, and diagnosed with the ideal heliostat under the Gaussian sun the user believes.
 
@@ -15,7 +15,7 @@ candidate (neighbour_shading), named, and explains the residual down to the nois
 
 import numpy as np
 import pytest
-from paint_world import World, write_paint_folder
+from support.paint_world import World, write_paint_folder
 
 from helioflow.data.paint import import_paint
 from helioflow.diagnosis.diagnose import SIGNIFICANCE, THRESHOLD, diagnose_dataset

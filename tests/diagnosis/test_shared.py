@@ -1,5 +1,5 @@
 """The plant fit (diagnosis/shared.py) on a plant it was not made for: PAINT folders of AA39's design
-at their own pivots, made by the independent Monte Carlo of tests/paint_world.py (8-bit PNGs),
+at their own pivots, made by the independent Monte Carlo of tests/support/paint_world.py (8-bit PNGs),
 under one Gaussian sun the model is told and one camera it is not (background 3 % of the peak,
 blur 1.5 px), each heliostat hiding its own tracking error and on most a canting error, a surface
 bump or a slope error. The camera is what they share: the plant fit names it and finds its blur
@@ -10,7 +10,7 @@ import json
 
 import numpy as np
 import pytest
-from paint_world import plant_worlds, write_plant
+from support.paint_world import plant_worlds, write_plant
 
 from helioflow.data.paint import import_paint
 from helioflow.diagnosis.shared import (
@@ -152,7 +152,8 @@ def test_a_blur_that_grows_with_slant_range_is_a_sun_told_too_narrow(told_mrad):
         assert level.value > 1.6 and test.significant and abs(width - 2.51) <= max(3 * width_sigma, 0.1)
         assert f"sunshape.sigma_mrad = {width:.3f}" in words and "wider than configured (2 mrad)" in words
     assert "not tested against the camera (no camera)" in range_verdict(None, "no camera", {})
-    hint = RangeTest(3.91, 1.37, 1.503, 0.095, ranges.tolist(), [True] * 30)  # plant30 told 2.0 mrad (docs/results.md)
+    # plant30 told 2.0 mrad (docs/journal/2026-11-28-heliostats-in-groups.md)
+    hint = RangeTest(3.91, 1.37, 1.503, 0.095, ranges.tolist(), [True] * 30)
     words = range_verdict(hint, "", {"sunshape": {"kind": "gaussian", "sigma_mrad": 2.0}})
     assert not hint.significant and "2.9 sigma" in words and "may be wider than configured (2 mrad" in words
     assert "Not renamed" in words and "agrees" not in words

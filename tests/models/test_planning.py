@@ -7,8 +7,7 @@ from datetime import datetime, timezone
 import numpy as np
 import pytest
 import torch
-from test_physical import BUIE, scene, suns
-from test_uncertainty import TRACKING, noisy
+from support.fit_scenes import BUIE, TRACKING, noisy, scene, suns
 
 from helioflow.models.physics_fit import (
     FitSettings,

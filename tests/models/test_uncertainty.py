@@ -5,7 +5,7 @@ turned over) flagged instead of reported with a small sigma."""
 import numpy as np
 import pytest
 import torch
-from test_physical import BUIE, negated_facets, scene, suns
+from support.fit_scenes import BUIE, TRACKING, negated_facets, noisy, scene, suns
 
 from helioflow.models.physics_fit import (
     FitResult,
@@ -16,15 +16,6 @@ from helioflow.models.physics_fit import (
     with_uncertainty,
 )
 from helioflow.models.uncertainty import STRUCTURED, FitUncertainty
-from helioflow.physics.effects import REGISTRY
-
-TRACKING = {p.name: "fit" for p in REGISTRY["tracking"].parameters}
-
-
-def noisy(clean: torch.Tensor, seed: int) -> torch.Tensor:
-    """Images (peak 1) with noise growing with the signal (photon-like) over a read-noise floor."""
-    g = torch.Generator().manual_seed(seed)
-    return clean + torch.randn(clean.shape, generator=g) * (0.003 + 0.02 * clean.clamp_min(0).sqrt())
 
 
 @pytest.mark.slow

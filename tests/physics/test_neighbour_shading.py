@@ -1,5 +1,5 @@
 """Shading and blocking by a neighbour of known position (effect neighbour_shading): the power it
-takes matches an independent numpy Monte Carlo (tests/paint_world.py, its own kinematics and ray
+takes matches an independent numpy Monte Carlo (tests/support/paint_world.py, its own kinematics and ray
 geometry) at every sun position, and the fast tracer matches the exact per-ray reference tracer."""
 
 import math
@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 import torch
-from paint_world import Scene as World_scene
-from paint_world import World, calibration_suns, trace_image, write_paint_folder
+from support.paint_world import Scene as World_scene
+from support.paint_world import World, calibration_suns, trace_image, write_paint_folder
 
 from helioflow.data.hdf5 import read_dataset
 from helioflow.data.paint import import_paint

@@ -492,7 +492,7 @@ if __name__ == "__main__":
 
 # --- through snakemake ----------------------------------------------------------------------------
 
-from test_pipeline import _workdir, snakemake  # noqa: E402  (the pipeline tests' runner)
+from support.pipeline import _workdir, snakemake  # noqa: E402  (the pipeline tests' runner)
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, id=c.bad_input, marks=_marks(c)) for c in CONFIG_CASES])

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from test_pipeline import _scheduled, _workdir, snakemake
+from support.pipeline import _scheduled, _workdir, snakemake
 
 from helioflow.config import load_config, validate_config
 from helioflow.errors import ConfigError

@@ -26,7 +26,7 @@ from helioflow.workflow import (
 )
 
 REPO = Path(__file__).resolve().parents[2]
-WORLD = REPO / "examples" / "plant_world"  # 6 heliostats in PAINT's layout (tests/paint_world.py)
+WORLD = REPO / "examples" / "plant_world"  # 6 heliostats in PAINT's layout (tests/support/paint_world.py)
 
 
 def _campaign_csv(path: Path, heliostats: list[str]) -> None:

@@ -6,7 +6,7 @@ import json
 import shutil
 
 import numpy as np
-from test_pipeline import REPO, _tiny, _workdir, snakemake
+from support.pipeline import REPO, _tiny, _workdir, snakemake
 
 from helioflow.data.hdf5 import CalibrationDataset, read_dataset
 from helioflow.diagnosis.diagnose import OWN_HOLDOUT_EVERY, scoring_split

@@ -1,8 +1,8 @@
-"""Issue 38's acceptance on an independent plant of 30 heliostats, end to end: tests/paint_world.py
+"""Issue 38's acceptance on an independent plant of 30 heliostats, end to end: tests/support/paint_world.py
 draws and writes it (AA39's design, 4 facets, 30 calibration images each, 8-bit, one Gaussian sun and
 one camera with background and blur, each heliostat its own hidden effects; not helioflow's tracer),
 `snakemake -j2 all` runs the plant demo's settings on it (workflow/variants/plant_demo.yaml, groups of
-15), and tests/plant_truth.py scores the run against the generator's truth: the named effects right
+15), and tests/support/plant_truth.py scores the run against the generator's truth: the named effects right
 for at least 90 % of the heliostats, the camera named as shared, the pointing recovered within 0.1
 mrad RMS.
 
@@ -16,9 +16,9 @@ import os
 
 import pytest
 import yaml
-from paint_world import plant_worlds, write_plant
-from plant_truth import score
-from test_pipeline import REPO, _workdir, snakemake
+from support.paint_world import plant_worlds, write_plant
+from support.plant_truth import score
+from support.pipeline import REPO, _workdir, snakemake
 
 HELIOSTATS, IMAGES, RAYS = 30, 30, 500_000
 BAR = {"named_right": 0.9, "pointing_recovered_rms_mrad": 0.1}

@@ -13,7 +13,7 @@ import subprocess
 
 import numpy as np
 import pytest
-from test_pipeline import _tiny, _workdir, snakemake
+from support.pipeline import _tiny, _workdir, snakemake
 
 from helioflow.data.hdf5 import read_dataset
 from helioflow.data.surfaces import read_heliostat

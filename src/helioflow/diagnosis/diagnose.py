@@ -341,7 +341,7 @@ class Diagnosis:
         (models/uncertainty.py: scaled by the fit's misfit and widened by how far it stopped short, but
         without the variance of facets the fit has not found, which is the tensor's own typical entry
         and made canting's W equal its degrees of freedom on every heliostat of the independent
-        plants, canting or not: docs/results.md), W = d^T C+ d beyond the
+        plants, canting or not: docs/journal/2026-11-28-seed-22-misses.md), W = d^T C+ d beyond the
         1 - SIGNIFICANCE quantile of chi^2 with rank(C) degrees of freedom, and the held-out error
         lower with it than without. {"wald", "dof", "p", "determined"}: `determined` false when the
         covariance reports any of its parameters not determined (a structured residual: the value may

@@ -12,8 +12,8 @@ a slope error, a canting or a tracking error is each heliostat's own. The plant 
    a wider sun) widen the spot alike, and a slope error free on every heliostat could take up any
    share of a shared widening. Not its canting either: freed, it takes a share of the blur on every
    heliostat (each one's sigma of the blur doubles to quadruples) and the level rises, as measured
-   on both 30-heliostat plants (docs/results.md). Widening common to the heliostats is
-   the shared effects'; what one heliostat has beyond it is its own, for its own diagnosis.
+   on both 30-heliostat plants (docs/journal/2026-11-28-seed-22-misses.md). Widening common to the
+   heliostats is the shared effects'; what one heliostat has beyond it is its own, for its own diagnosis.
 3. Every change to a shared effect the diagnosis would try (the camera added, the sun's width
    freed, the sun switched to another profile: diagnosis/candidates.py) is fitted on each
    heliostat alone (its own effects and the change's values), and every heliostat is refitted with

@@ -1,5 +1,5 @@
 """A plant run scored against the truth of the independent generator that made its images
-(tests/paint_world.py `write_plant`: truth.json beside the PAINT folders).
+(tests/support/paint_world.py `write_plant`: truth.json beside the PAINT folders).
 
 Per heliostat: the effects its diagnosis named against those hidden (a tracking error always; a
 canting, bump = registry `surface` or slope = `slope_error` on most), and the pointing recovered:
@@ -10,7 +10,7 @@ and without its canting errors: a mean facet tilt points the spot as the kinemat
 The worlds are drawn again from the generator's seed (`--seed`, the demo's by default). The shared effects:
 what plant/shared.json changed, against the camera and sun the generator used.
 
-Run: python tests/plant_truth.py RESULTS_DIR PAINT_DIR [--plant plant] [--model drt] [--seed 11] [--json out.json]
+Run: python tests/support/plant_truth.py RESULTS_DIR PAINT_DIR [--plant plant] [--model drt] [--seed 11] [--json out.json]
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from paint_world import PLANT_DEMO, Scene, World, plant_worlds, rotation, sun_vector  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: support.paint_world, run as a script
+from support.paint_world import PLANT_DEMO, Scene, World, plant_worlds, rotation, sun_vector  # noqa: E402
 
 from helioflow.data.hdf5 import read_dataset  # noqa: E402
 from helioflow.models.registry import load_model  # noqa: E402

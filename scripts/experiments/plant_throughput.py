@@ -7,7 +7,7 @@ imports, `--startup-s`, measured apart with `python -c "import torch, helioflow.
 else (imports of the PAINT folders, evaluation, tables, flux maps, the report, the start-ups) is
 outside them. The heliostats are the rows of plant/heliostats.csv.
 
-Run: python tests/plant_throughput.py RESULTS_DIR SNAKEMAKE_LOG [--startup-s 2.5]
+Run: python scripts/experiments/plant_throughput.py RESULTS_DIR SNAKEMAKE_LOG [--startup-s 2.5]
 """
 
 from __future__ import annotations

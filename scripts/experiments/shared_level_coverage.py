@@ -6,7 +6,7 @@ Each trial draws n heliostats' own values of a shared width 1.5 (px): each with 
 (uniform 0.03-0.06, as the plant fits report), a share `clean` of them without a widening of their
 own, the rest widened by 0.05-0.5 (uniform; a slope error, a bump or canting).
 
-Run: python tests/shared_level_coverage.py [--trials 300]
+Run: python scripts/experiments/shared_level_coverage.py [--trials 300]
 """
 
 from __future__ import annotations

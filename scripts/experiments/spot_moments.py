@@ -1,4 +1,4 @@
-"""The spot's second moments: helioflow's tracer against tests/paint_world.py's independent Monte Carlo.
+"""The spot's second moments: helioflow's tracer against tests/support/paint_world.py's independent Monte Carlo.
 
 AA39 (the PAINT design), no tracking error, a Gaussian sun (and optionally a slope error); per sun
 position the model's image (`dataset_scene(...).simulate`, kernel splat on `--cells` cells per side)
@@ -6,7 +6,7 @@ and the Monte Carlo's (8e6 rays, its 256 x 256 histogram area-averaged to 64 x 6
 does), both as float images. Prints each one's variance per axis (px^2) and the difference: how much
 wider or narrower the model draws the spot than a camera would see it.
 
-Run: python tests/spot_moments.py [--cells 16 48] [--slope-mrad 1.5]
+Run: python scripts/experiments/spot_moments.py [--cells 16 48] [--slope-mrad 1.5]
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from paint_world import Scene, World, calibration_suns, trace_image, write_paint_folder  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))  # support.paint_world
+from support.paint_world import Scene, World, calibration_suns, trace_image, write_paint_folder  # noqa: E402
 
 from helioflow.data.hdf5 import read_dataset  # noqa: E402
 from helioflow.data.paint import import_paint, resample_area  # noqa: E402

@@ -1,12 +1,12 @@
 """How visible each heliostat's own hidden effect is in its calibration images, measured with the
-independent generator itself (tests/paint_world.py), not with helioflow's tracer: the misplaced flux
+independent generator itself (tests/support/paint_world.py), not with helioflow's tracer: the misplaced flux
 between the images traced with and without the effect (the same tracking, sun, camera and random
 rays: common random numbers, so that the difference is the effect's alone), noise-free, at the
 dataset's 64 x 64 pixels, over the noise floor the diagnosis measured on that heliostat's images.
 Below ~1 an effect moves less flux than the noise does: no criterion on the misplaced flux can name
 it, and a fitted value must carry it alone.
 
-    python tests/plant_visibility.py RESULTS PAINT_DIR --seed S [--images 8] [--rays 500000]
+    python scripts/experiments/plant_visibility.py RESULTS PAINT_DIR --seed S [--images 8] [--rays 500000]
 
 RESULTS: the plant's results/<experiment> (diagnosis/<entry>_<heliostat>.json for the noise floor
 and what was named), PAINT_DIR the generator's folder (truth.json), S the plant's seed.
@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from paint_world import Scene, calibration_suns, camera, plant_worlds, trace_image  # noqa: E402
-from plant_truth import EFFECT_OF  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))  # support.paint_world
+from support.paint_world import Scene, calibration_suns, camera, plant_worlds, trace_image  # noqa: E402
+from support.plant_truth import EFFECT_OF  # noqa: E402
 
 PIXELS = 64  # the dataset's image side (import-paint's)
 NEGLIGIBLE = 1e-9  # mrad: a slope error that draws the same random numbers and does nothing

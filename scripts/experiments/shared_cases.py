@@ -1,8 +1,8 @@
 """The plant fit (diagnosis/shared.py) over several independent plants: what it names as shared and
-the camera blur it finds, per seed, against the truth (tests/paint_world.py `plant_worlds`: one
+the camera blur it finds, per seed, against the truth (tests/support/paint_world.py `plant_worlds`: one
 Gaussian sun the model is told, one camera it is not, background 3 % of the peak, blur 1.5 px).
 
-Run: python tests/shared_cases.py [--seeds 3 4 5] [--heliostats 6] [--images 16]
+Run: python scripts/experiments/shared_cases.py [--seeds 3 4 5] [--heliostats 6] [--images 16]
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from paint_world import plant_worlds, write_plant  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))  # support.paint_world
+from support.paint_world import plant_worlds, write_plant  # noqa: E402
 
 from helioflow.data.paint import import_paint  # noqa: E402
 from helioflow.diagnosis.shared import plant_shared  # noqa: E402

@@ -1,5 +1,5 @@
 """Where the fast tracer puts a spot's centroid, against the reference tracer and an independent
-Monte Carlo (tests/paint_world.py), on the real AA39 and the Jülich upper target: the kernel
+Monte Carlo (tests/support/paint_world.py), on the real AA39 and the Jülich upper target: the kernel
 footprint's far side (docs/physics.md, "The tracer"). A measurement script, not a test.
 
 The ideal AA39, no tracking error, a Gaussian sun (3.3 mrad per axis; --sigma), at 8 sun positions
@@ -9,7 +9,7 @@ import does: uncertainty_cases.true_centroids_mrad). Prints each difference per 
 their means; --against REV also traces with the footprint of that git revision (e.g. main), in the
 same process.
 
-Run: python tests/footprint_centroids.py [--sigma 3.3] [--against REV]
+Run: python scripts/experiments/footprint_centroids.py [--sigma 3.3] [--against REV]
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from paint_world import World, calibration_suns, write_paint_folder  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))  # support.paint_world
+from support.paint_world import World, calibration_suns, write_paint_folder  # noqa: E402
 from uncertainty_cases import true_centroids_mrad  # noqa: E402
 
 from helioflow.data.hdf5 import read_dataset  # noqa: E402
@@ -43,7 +43,7 @@ SUNS = calibration_suns(8, 1)
 def raytrace_of(revision: str):
     """The module helioflow.physics.raytrace as it was at a git revision."""
     source = subprocess.run(["git", "show", f"{revision}:src/helioflow/physics/raytrace.py"], check=True,
-                            capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1]).stdout
+                            capture_output=True, text=True, cwd=Path(__file__).resolve().parents[2]).stdout
     path = Path(tempfile.mkdtemp()) / "raytrace_then.py"
     path.write_text(source)
     spec = importlib.util.spec_from_file_location("raytrace_then", path)

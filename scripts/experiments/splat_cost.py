@@ -4,7 +4,7 @@ positions at once, 16 and 48 cells per side, forward) against git revision 5e23a
 ray's footprint per facet), alternated in one process so that the ratio is measured under one load.
 A measurement script, not a test.
 
-Run: python tests/splat_cost.py [--against 5e23a2f] [--dataset D.h5 --heliostat H.h5]
+Run: python scripts/experiments/splat_cost.py [--against 5e23a2f] [--dataset D.h5 --heliostat H.h5]
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))  # support.paint_world
 from footprint_centroids import SUNS, alternated, imported_aa39, raytrace_of  # noqa: E402
-from paint_world import World  # noqa: E402
+from support.paint_world import World  # noqa: E402
 
 from helioflow.data.hdf5 import read_dataset  # noqa: E402
 from helioflow.data.surfaces import read_heliostat  # noqa: E402

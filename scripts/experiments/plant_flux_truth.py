@@ -1,6 +1,6 @@
 """A plant's flux maps (rule plant_flux, plant/flux/<plant>.h5) scored against the true flux on the
 receiver, traced by the independent generator that made the plant's calibration images
-(tests/paint_world.py: each heliostat with its hidden tracking, canting, bump and slope error, under
+(tests/support/paint_world.py: each heliostat with its hidden tracking, canting, bump and slope error, under
 the generator's sun, without its camera), aiming at the receiver centre as the maps do.
 
 The generator knows no atmosphere and no neighbours: score maps made without attenuation and
@@ -10,7 +10,7 @@ origin, helioflow's from the pivot (data.paint): a small difference of the two c
 Per design point: each map's flux accuracy against the truth (1 - sum|P - T| / sum T) and per
 heliostat the distance of its spot's centroid from the true spot's (m), ideal and calibrated.
 
-Run: python tests/plant_flux_truth.py RESULTS_DIR PAINT_DIR [--plant plant] [--seed 11] [--rays 2000000] [--json out.json]
+Run: python scripts/experiments/plant_flux_truth.py RESULTS_DIR PAINT_DIR [--plant plant] [--seed 11] [--rays 2000000] [--json out.json]
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from paint_world import PLANT_DEMO, PNG_SIDE, Scene, plant_worlds, trace_image  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))  # support.paint_world
+from support.paint_world import PLANT_DEMO, PNG_SIDE, Scene, plant_worlds, trace_image  # noqa: E402
 
 from helioflow.data.hdf5 import read_arrays  # noqa: E402
 from helioflow.data.paint import resample_area  # noqa: E402

@@ -1,4 +1,4 @@
-"""How sure helioflow's fits are, checked on data it did not make (tests/paint_world.py's independent
+"""How sure helioflow's fits are, checked on data it did not make (tests/support/paint_world.py's independent
 Monte Carlo of the real AA39 heliostat, 8-bit PNGs imported with `source: paint`), and whether the
 images `plan` recommends teach the fit more than others.
 
@@ -23,7 +23,7 @@ sun, tracking fitted, the case's spread fitted) is fitted on the 8 with its unce
 few images, where the tracking's parameters are confounded and the prediction itself is uncertain,
 so that the next images can move the held-out error.
 
-Run: python tests/uncertainty_cases.py [--seeds 1 2 3] [--known 8] [--json out.json]
+Run: python scripts/experiments/uncertainty_cases.py [--seeds 1 2 3] [--known 8] [--json out.json]
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from paint_world import Scene, World, trace_image, write_paint_folder  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))  # support.paint_world
+from support.paint_world import Scene, World, trace_image, write_paint_folder  # noqa: E402
 
 from helioflow.data.hdf5 import read_dataset  # noqa: E402
 from helioflow.data.noise import measure_noise  # noqa: E402

@@ -3,7 +3,7 @@ per side) and field flux maps (`python -m helioflow.bench field`'s fields of 1,0
 heliostats), each with today's footprint and with that of a git revision, alternated in one process
 so that the ratio is measured under one load. A measurement script, not a test.
 
-Run: python tests/footprint_cost.py [--against main] [--sizes 1000 10000]
+Run: python scripts/experiments/footprint_cost.py [--against main] [--sizes 1000 10000]
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))  # support.paint_world
 from footprint_centroids import SUNS, alternated, footprint_of, imported_aa39  # noqa: E402
-from paint_world import World  # noqa: E402
+from support.paint_world import World  # noqa: E402
 
 from helioflow import bench  # noqa: E402
 from helioflow.physics import field, raytrace  # noqa: E402

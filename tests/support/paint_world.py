@@ -48,7 +48,7 @@ from scipy.ndimage import gaussian_filter, map_coordinates
 from helioflow.data.paint import Tower
 from helioflow.physics.geometry import wgs84_to_enu
 
-PAINT = Path(__file__).resolve().parent / "data" / "paint"
+PAINT = Path(__file__).resolve().parents[1] / "data" / "paint"
 HELIOSTAT = "AA39"
 PNG_SIDE = 256
 LATITUDE_DEG, LONGITUDE_DEG = 50.9134, 6.3878  # Jülich
@@ -408,7 +408,7 @@ def write_plant(folder: Path, worlds: dict, n_images: int, rays: int, seed: int)
 
 PLANT_DEMO = {"n": 6, "seed": 11, "n_images": 16, "rays": 500_000}  # workflow/variants/plant_demo.yaml
 
-if __name__ == "__main__":  # python tests/paint_world.py examples/paint_world | plant DIR [--heliostats N ...]
+if __name__ == "__main__":  # python tests/support/paint_world.py examples/paint_world | plant DIR [--heliostats N ...]
     import argparse
 
     ap = argparse.ArgumentParser(description="Write the PAINT demo folder, or (first argument `plant`) a plant's "
