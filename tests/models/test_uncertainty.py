@@ -7,6 +7,7 @@ import pytest
 import torch
 from support.fit_scenes import BUIE, TRACKING, negated_facets, noisy, scene, suns
 
+from helioflow.data.noise import correlate
 from helioflow.models.physics_fit import (
     FitResult,
     FitSettings,
@@ -58,6 +59,38 @@ def test_reported_sigma_matches_the_scatter_of_the_fit_over_noise_draws():
     bright = np.mean(fluxes, 0) > 0.1 * np.mean(fluxes, 0).max()
     assert bright.sum() > 50
     assert np.median(f_scatter[bright] / f_reported[bright]) == pytest.approx(1.0, abs=0.3)
+
+
+@pytest.mark.slow
+def test_noise_smooth_over_pixels_widens_the_sigma_to_the_scatter_of_the_fit():
+    """Noise blurred over 1.5 px (a camera's optics, a rectified image): the tracking's sigma, read
+    with the residual's own correlation (models/correlated.py), is the scatter of the fit over 8 draws
+    (a white estimate would be 4-5 times low: the correlation multiplies the variance by more than 10);
+    the slope error, which smooth noise moves as a width would, is flagged not determined or covered."""
+    s = scene()
+    truth = {"tracking": torch.tensor([0.8, -0.5, 0.3, -0.6, 0.4])}
+    world = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 1.5}, "tracking": {}}
+    model = {"sunshape": BUIE, "slope_error": {"sigma_mrad": "fit"}, "tracking": TRACKING}
+    az, el = suns(12)
+    with torch.no_grad():
+        clean = s.simulate(world, truth, az, el)
+    scale = float(clean.max())
+    clean = clean / scale
+    settings = FitSettings(steps=60, rounds=2, gauss_newton_steps=3, search_iterations=20)
+    fits = []
+    for seed in range(8):
+        white = torch.randn(clean.shape, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
+        images = clean + correlate(white, 1.5).float() * (0.003 + 0.02 * clean.clamp_min(0).sqrt())
+        data = Measurements(images, az, el, scale)
+        fits.append(with_uncertainty(s, fit_effects(s, model, data, settings), data, "absolute").uncertainty)
+    tracking = [k for k, n in enumerate(fits[0].names) if n.startswith("tracking.")]
+    scatter = np.std([u.values for u in fits], 0, ddof=1)
+    reported = np.mean([u.sigma for u in fits], 0)
+    ratio = scatter[tracking] / reported[tracking]
+    assert np.all(ratio > 0.5) and np.all(ratio < 1.6), ratio
+    assert min(u.correlation_gain for u in fits) > 10
+    slope = fits[0].index("slope_error.sigma_mrad")
+    assert all("slope_error.sigma_mrad" in u.undetermined for u in fits) or scatter[slope] / reported[slope] < 1.6
 
 
 def test_a_facet_left_turned_over_is_flagged_not_determined_and_the_rest_is_not():

@@ -7,9 +7,10 @@ r(theta + d) = r + J d with J (pixels x P) the Jacobian. Pixel noise e of varian
 least-squares optimum by d = -H+ J^T e, H = J^T J, so the fitted parameters scatter with the
 sandwich covariance
 
-    C = H+ (J^T diag(s^2) J) H+
+    C = H+ (J^T S J) H+,  S = diag(s) R diag(s)
 
-(Gauss-Newton / Laplace for an unweighted fit of pixels whose noise grows with their signal). H+ is
+(Gauss-Newton / Laplace for an unweighted fit of pixels whose noise grows with their signal; R the
+noise's correlation between pixels, the identity for white noise: below). H+ is
 the pseudo-inverse: a direction that changes no image (a facet's plane, the facets' mean tilt: both
 removed from the model by `effective_tensors`) carries no variance, and none of its value is
 reported. A direction the images barely see gets a large variance: the images do not determine it.
@@ -33,7 +34,10 @@ for the true heliostat, whose kernel trace differs from the dataset's ray trace)
 
 - the covariance is multiplied by max(1, misfit), the residual's mean square over the noise's (the
   residual scatters the parameters as noise of its size would: Birge's ratio, what SciPy's
-  `curve_fit` does without `absolute_sigma`);
+  `curve_fit` does without `absolute_sigma`), and R is the whitened residual's own correlation
+  over pixels (models/correlated.py): a residual smooth over n pixels (a camera's optics, a
+  rectified image, the model's mismatch) moves the spot's smooth parameters up to n times more
+  than white noise of its size;
 - the Gauss-Newton step from the end point, d = -H+ J^T r, is how far the fit stopped short of
   the optimum of its own images (0 at an optimum, local or not): d d^T is added to the covariance
   (on sanity_check's noise-free images the fit stops 0.0065 mrad short in slope error, 40 times
@@ -67,6 +71,7 @@ import torch
 from torch import Tensor
 
 from helioflow.data.noise import NoiseModel, measure_noise
+from helioflow.models.correlated import correlated_gram, ring_spectrum
 from helioflow.physics.effects import REGISTRY, TENSOR_EFFECTS, with_role
 from helioflow.physics.scene import LinearisedScene, Scene, effective_tensors, normalised
 
@@ -106,6 +111,9 @@ class FitUncertainty:
             gives a not-found facet's entries the variance of the tensor's own typical entry, so that
             its departure from zero is about its own size by construction, whatever the images say.
             Not kept in model files (None when loaded).
+        correlation_gain: the median over the parameters of the noise's variance in them with the
+            residual's correlation over pixels (models/correlated.py) over that of white noise of
+            the same size (1 for a white residual; ~ the pixels per independent one for a smooth one).
     """
 
     names: list[str]
@@ -119,6 +127,7 @@ class FitUncertainty:
     undetermined: list[str] = field(default_factory=list)
     noise: NoiseModel | None = None
     statistical: np.ndarray | None = None
+    correlation_gain: float = 1.0
 
     @property
     def sigma(self) -> np.ndarray:
@@ -165,7 +174,7 @@ class FitUncertainty:
         return {"method": "sandwich covariance at the fit's end point (models/uncertainty.py)",
                 "scalars": scalars, "tensors": tensors, "misfit": _num(self.misfit),
                 "structure": _num(self.structure), "structured_beyond": {"facet": STRUCTURED, "spreads": SPREADS_STRUCTURED},
-                "noise_rms": _num(self.noise_rms),
+                "noise_rms": _num(self.noise_rms), "correlation_gain": _num(self.correlation_gain),
                 "facet_structure": None if self.facet_structure is None else np.round(self.facet_structure, 3).tolist(),
                 "correlations": self.strongest_correlations()}
 
@@ -173,7 +182,7 @@ class FitUncertainty:
         """What a model file keeps (arrays as tensors)."""
         return {"names": self.names, "units": self.units, "values": torch.as_tensor(self.values),
                 "covariance": torch.as_tensor(self.covariance), "misfit": self.misfit, "structure": self.structure,
-                "noise_rms": self.noise_rms,
+                "noise_rms": self.noise_rms, "correlation_gain": self.correlation_gain,
                 "facet_structure": None if self.facet_structure is None else torch.as_tensor(self.facet_structure),
                 "undetermined": self.undetermined,
                 "noise": None if self.noise is None else {"levels": torch.as_tensor(self.noise.levels),
@@ -188,7 +197,8 @@ class FitUncertainty:
                    float(state["noise_rms"]),
                    None if facet is None else np.asarray(facet), list(state["undetermined"]),
                    None if noise is None else NoiseModel(np.asarray(noise["levels"]), np.asarray(noise["variance"]),
-                                                         float(noise["slope"])))
+                                                         float(noise["slope"])),
+                   correlation_gain=float(state.get("correlation_gain", 1.0)))  # 1: a file written before it
 
 
 def _num(x: float) -> float | None:
@@ -391,8 +401,12 @@ def fit_uncertainty(state: _State, fitted: list[tuple[str, str]], masks: dict[st
     h = (jacobian.T @ jacobian).double()
     weighted = jacobian * std.float()[:, None]
     h_plus = _pseudo_inverse(h.numpy())
-    free_cov = h_plus @ (weighted.T @ weighted).double().numpy() @ h_plus
     misfit = float((residual**2).sum() / variance.sum().clamp_min(1e-300))
+    whitened = residual / std.reshape(measured.shape)
+    gram = correlated_gram(weighted, tuple(measured.shape), ring_spectrum(whitened, unit_mean=max(1.0, misfit)))
+    white = np.diag((weighted.T @ weighted).double().numpy()) * max(1.0, misfit)
+    gain = np.divide(np.diag(gram), white, out=np.ones_like(white), where=white > 0)
+    free_cov = h_plus @ gram @ h_plus
     shaped = variance.reshape(measured.shape)
     overall = structure(residual, shaped)
     facets = _facet_structure(state, residual, shaped) if _has_facets(params) else None
@@ -400,10 +414,10 @@ def fit_uncertainty(state: _State, fitted: list[tuple[str, str]], masks: dict[st
     undetermined = [p.name for p in params if (p.kind == "spread" and (overall > SPREADS_STRUCTURED or at_bound(p)))
                     or (p.kind == "tensor" and p.key[0] != "tracking" and p.key[1][0] in off)]
     newton = h_plus @ (jacobian.T @ residual.flatten().float()).double().numpy()  # what the fit has left to go
-    statistical = free_cov * max(1.0, misfit) + np.outer(newton, newton)
+    statistical = free_cov + np.outer(newton, newton)
     covariance = entry_of @ (statistical + _systematic(h.numpy(), state, masks, off)) @ entry_of.T
     return FitUncertainty(names, units, values, covariance, misfit, overall, float(variance.mean().sqrt()), facets,
-                          undetermined, noise, entry_of @ statistical @ entry_of.T)
+                          undetermined, noise, entry_of @ statistical @ entry_of.T, float(np.median(gain)))
 
 
 def compared_jacobian(state: _State, params: list[_Parameter],
@@ -553,7 +567,7 @@ def predicted_spread(state: _State, fitted: list[tuple[str, str]], masks: dict[s
         raise ValueError("the uncertainty was computed for other parameters than this fit's")
     slant = float((state.scene.target.center - state.scene.heliostat.position).norm())
     centroid = lambda images: state.scene.target.centroid(images.float()).double() / slant * 1e3  # (N, 2) mrad
-    images, lost = state.prediction(*state.traced(state.effects, state.tensors))
+    images, _ = state.prediction(*state.traced(state.effects, state.tensors))
     c_columns = torch.zeros(len(images), 2, len(params), dtype=torch.float64)
     f_columns = torch.zeros(images.numel(), len(params), dtype=torch.float32) if with_flux else None
     for k, step, plus, minus in perturbed(state, params):
