@@ -18,23 +18,31 @@ from helioflow.models.physics_fit import (
 )
 from helioflow.models.uncertainty import STRUCTURED, FitUncertainty
 
+TRUTH = {"tracking": torch.tensor([0.8, -0.5, 0.3, -0.6, 0.4])}
+SETTINGS = FitSettings(steps=60, rounds=2, gauss_newton_steps=3, search_iterations=20)
 
-@pytest.mark.slow
-def test_reported_sigma_matches_the_scatter_of_the_fit_over_noise_draws():
+
+def _tracking_problem():
+    """(scene, the effects fitted, 12 sun positions (az, el), the images (peak 1), their scale) of a
+    one-facet heliostat whose world has TRUTH's tracking error and a 1.5 mrad slope error."""
     s = scene()
-    truth = {"tracking": torch.tensor([0.8, -0.5, 0.3, -0.6, 0.4])}
     world = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 1.5}, "tracking": {}}
     model = {"sunshape": BUIE, "slope_error": {"sigma_mrad": "fit"}, "tracking": TRACKING}
     az, el = suns(12)
     with torch.no_grad():
-        clean = s.simulate(world, truth, az, el)
+        clean = s.simulate(world, TRUTH, az, el)
     scale = float(clean.max())
-    settings = FitSettings(steps=60, rounds=2, gauss_newton_steps=3, search_iterations=20)
+    return s, model, (az, el), clean / scale, scale
+
+
+@pytest.mark.slow
+def test_reported_sigma_matches_the_scatter_of_the_fit_over_noise_draws():
+    s, model, (az, el), clean, scale = _tracking_problem()
     values, sigmas, centroids, centroid_sigmas, fluxes, flux_sigmas = [], [], [], [], [], []
     held_az, held_el = torch.tensor([35.0]), torch.tensor([50.0])
     for seed in range(8):
-        data = Measurements(noisy(clean / scale, seed), az, el, scale)
-        fit = with_uncertainty(s, fit_effects(s, model, data, settings), data, "absolute")
+        data = Measurements(noisy(clean, seed), az, el, scale)
+        fit = with_uncertainty(s, fit_effects(s, model, data, SETTINGS), data, "absolute")
         u = fit.uncertainty
         assert u.undetermined == [] and u.structure < STRUCTURED
         values.append(u.values)
@@ -48,7 +56,7 @@ def test_reported_sigma_matches_the_scatter_of_the_fit_over_noise_draws():
     # 8 draws: the sample std is within a factor 0.55..1.5 of the true one at 95 %
     assert np.all(scatter / reported > 0.5) and np.all(scatter / reported < 1.6), (scatter, reported)
     assert np.median(scatter / reported) == pytest.approx(1.0, abs=0.3)
-    truth_values = np.array([*truth["tracking"].tolist(), 1.5])
+    truth_values = np.array([*TRUTH["tracking"].tolist(), 1.5])
     z = (np.array(values) - truth_values) / np.array(sigmas)
     assert np.mean(np.abs(z) < 1.96) > 0.85  # coverage of the 95 % interval
     c_scatter, c_reported = np.std(centroids, 0, ddof=1), np.mean(centroid_sigmas, 0)
@@ -67,22 +75,13 @@ def test_noise_smooth_over_pixels_widens_the_sigma_to_the_scatter_of_the_fit():
     with the residual's own correlation (models/correlated.py), is the scatter of the fit over 8 draws
     (a white estimate would be 4-5 times low: the correlation multiplies the variance by more than 10);
     the slope error, which smooth noise moves as a width would, is flagged not determined or covered."""
-    s = scene()
-    truth = {"tracking": torch.tensor([0.8, -0.5, 0.3, -0.6, 0.4])}
-    world = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 1.5}, "tracking": {}}
-    model = {"sunshape": BUIE, "slope_error": {"sigma_mrad": "fit"}, "tracking": TRACKING}
-    az, el = suns(12)
-    with torch.no_grad():
-        clean = s.simulate(world, truth, az, el)
-    scale = float(clean.max())
-    clean = clean / scale
-    settings = FitSettings(steps=60, rounds=2, gauss_newton_steps=3, search_iterations=20)
+    s, model, (az, el), clean, scale = _tracking_problem()
     fits = []
     for seed in range(8):
         white = torch.randn(clean.shape, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
         images = clean + correlate(white, 1.5).float() * (0.003 + 0.02 * clean.clamp_min(0).sqrt())
         data = Measurements(images, az, el, scale)
-        fits.append(with_uncertainty(s, fit_effects(s, model, data, settings), data, "absolute").uncertainty)
+        fits.append(with_uncertainty(s, fit_effects(s, model, data, SETTINGS), data, "absolute").uncertainty)
     tracking = [k for k, n in enumerate(fits[0].names) if n.startswith("tracking.")]
     scatter = np.std([u.values for u in fits], 0, ddof=1)
     reported = np.mean([u.sigma for u in fits], 0)
