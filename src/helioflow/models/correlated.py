@@ -17,8 +17,8 @@ For white noise R is the identity (its spectrum flat) and the white estimate is 
 residual the model cannot explain, the Birge ratio's inflation (the residual's mean square over the
 noise's, models/uncertainty.py) comes with it, at the frequencies where the residual lies.
 What it does not see: the part of the residual that the fit itself has absorbed (at the optimum r
-is orthogonal to J's columns), a few per cent of the power at the spot's frequencies for fits of
-hundreds of parameters on tens of images.
+is orthogonal to J's columns: P of the pixels' degrees of freedom, all at the spot's frequencies;
+not measured).
 """
 
 from __future__ import annotations
