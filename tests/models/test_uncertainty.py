@@ -116,3 +116,27 @@ def test_the_uncertainty_survives_the_model_file_round_trip():
     assert back.sigma == pytest.approx([0.02, 0.03])
     assert back.as_json()["scalars"]["slope_error.sigma_mrad"] == {"value": 1.2, "sigma": 0.03, "unit": "mrad",
                                                                      "determined": True}
+
+
+@pytest.mark.parametrize("case", ["one facet, tracking and slope error", "2 x 2 facets, surface"])
+def test_the_centroids_derivative_by_autograd_is_the_central_difference_one(case):
+    """spot_spread takes the centroid's derivative by the heliostat tensors by autograd through the
+    linearised trace (each image its own copy of the tensors); with_flux it takes every column by
+    central differences of traced images. Both give the same Jacobian and sigma."""
+    if case.startswith("one"):
+        s, model, (az, el), clean, scale = _tracking_problem()
+        data = Measurements(noisy(clean, 0), az, el, scale)
+        fit = with_uncertainty(s, fit_effects(s, model, data, SETTINGS), data, "absolute")
+    else:
+        s, truth, data, effects, _ = negated_facets(2, 2, negated=1)
+        data = Measurements(noisy(data.images, 0), data.azimuth_deg, data.elevation_deg, data.scale)
+        fit = FitResult(effects, {"surface": truth}, fitted=[("surface", "control_heights_mm")])
+        fit = with_uncertainty(s, fit, data, "absolute")
+    held_az, held_el = torch.tensor([35.0, -20.0, 60.0]), torch.tensor([50.0, 30.0, 65.0])
+    by_autograd = spot_spread(s, fit, held_az, held_el, data.scale, "absolute")
+    by_differences = spot_spread(s, fit, held_az, held_el, data.scale, "absolute", with_flux=True)
+    a, b = by_autograd["centroid_jacobian"].numpy(), by_differences["centroid_jacobian"].numpy()
+    assert np.abs(a).max() > 0.1  # mrad of centroid per parameter unit: the derivative is not trivially 0
+    assert np.abs(a - b).max() < 0.02 * np.abs(b).max()
+    assert by_autograd["centroid_sigma_mrad"].numpy() == pytest.approx(
+        by_differences["centroid_sigma_mrad"].numpy(), rel=0.02)

@@ -560,6 +560,35 @@ def end_state(scene: Scene, result, azimuth_deg: Tensor, elevation_deg: Tensor, 
     return _State(scene, result.effects, tensors, azimuth_deg, elevation_deg, loss, scale, gain, offset, fast)
 
 
+def _centroid_jacobian(state: _State, params: list[_Parameter], centroid) -> Tensor | None:
+    """(N, 2, K) the derivative of each image's `centroid` ((N, H, W) predictions -> (N, 2) mrad) by
+    the K tensor entries `params`, by autograd through the trace linearised at the fit
+    (physics/linearised.py), each of the N images with its own copy of the tensors: one backward
+    pass per centroid axis instead of two traces per entry (200 images and 69 entries: ~100 times
+    fewer traces). Its derivatives are the linearised trace's, which hold each cell's power and
+    footprint at the fit: on sanity_check's surface and tracking the sigma they give lies within
+    1 % of central differences on the kernel trace. None when the scene cannot be linearised."""
+    fast = state.fast
+    if fast is None:
+        if not isinstance(state.scene, Scene):
+            return None
+        fast = LinearisedScene.of(state.scene, state.effects, state.tensors, state.azimuth_deg, state.elevation_deg)
+    n = len(state.azimuth_deg)
+    own = {k: v.detach().expand(n, *v.shape).clone().requires_grad_() for k, v in state.tensors.items()}
+    with torch.enable_grad():
+        images, lost = fast.simulate(_neutral_linear(state.effects), own, state.azimuth_deg, state.elevation_deg,
+                                     with_lost=True, projected=True)
+        images, _ = state.prediction(images.double() / state.scale, lost.double() / state.scale)
+        c = centroid(images)
+        columns = []
+        for axis in (0, 1):
+            grads = torch.autograd.grad(c[:, axis].sum(), list(own.values()), retain_graph=axis == 0,
+                                        allow_unused=True)
+            by_key = {k: torch.zeros_like(v) if g is None else g for (k, v), g in zip(own.items(), grads)}
+            columns.append(torch.stack([by_key[p.key[0]][(slice(None), *p.key[1])] for p in params], -1))
+    return torch.stack(columns, 1).double()
+
+
 def predicted_spread(state: _State, fitted: list[tuple[str, str]], masks: dict[str, Tensor],
                      uncertainty: FitUncertainty, with_flux: bool = False) -> dict[str, Tensor]:
     """What the covariance implies for the spots at `state`'s sun positions (N of them), to first
@@ -575,7 +604,14 @@ def predicted_spread(state: _State, fitted: list[tuple[str, str]], masks: dict[s
     images, _ = state.prediction(*state.traced(state.effects, state.tensors))
     c_columns = torch.zeros(len(images), 2, len(params), dtype=torch.float64)
     f_columns = torch.zeros(images.numel(), len(params), dtype=torch.float32) if with_flux else None
-    for k, step, plus, minus in perturbed(state, params):
+    by_tensor = [] if with_flux else [k for k, p in enumerate(params) if p.kind == "tensor"]
+    if by_tensor and (columns := _centroid_jacobian(state, [params[k] for k in by_tensor], centroid)) is not None:
+        c_columns[..., by_tensor] = columns
+    else:
+        by_tensor = []
+    rest = [k for k in range(len(params)) if k not in by_tensor]
+    for j, step, plus, minus in perturbed(state, [params[k] for k in rest]) if rest else ():
+        k = rest[j]
         c_columns[..., k] = (centroid(plus[0]) - centroid(minus[0])) / (2.0 * step)
         if with_flux:
             f_columns[:, k] = ((plus[0] - minus[0]) / (2.0 * step)).flatten().float()

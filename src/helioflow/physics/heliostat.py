@@ -290,16 +290,17 @@ def sample_surface(heliostat: Heliostat, cells_per_side: int) -> SurfaceSamples:
 def deformation(control_heights: Tensor, facet_size: Tensor, cells_per_side: int) -> tuple[Tensor, Tensor, Tensor]:
     """The B-spline deformation at the cell centres of every facet (see `sample_surface`): its
     height (unit of the control heights), slope along the facet's right and up axes (that unit per
-    metre), each (F, G, G) with rows along up (top first) and columns along right."""
+    metre), each (..., F, G, G) for (..., F, C, C) control heights and (F, 2) facet sizes (m), with
+    rows along up (top first) and columns along right."""
     g, n_control = cells_per_side, control_heights.shape[-1]
     dtype, device = control_heights.dtype, control_heights.device
     b, db = (torch.as_tensor(a, dtype=dtype, device=device)
              for a in bspline_basis((np.arange(g) + 0.5) / g, n_control))
     w, hgt = facet_size[:, 0, None, None], facet_size[:, 1, None, None]
-    c = control_heights  # (F, C, C) indexed [row along up (top first), column along right]
-    z = torch.einsum("ui,fij,vj->fuv", b, c, b)
-    dz_dx = torch.einsum("ui,fij,vj->fuv", b, c, db) / w
-    dz_dy = -torch.einsum("ui,fij,vj->fuv", db, c, b) / hgt
+    c = control_heights  # (..., F, C, C) indexed [row along up (top first), column along right]
+    z = torch.einsum("ui,...ij,vj->...uv", b, c, b)
+    dz_dx = torch.einsum("ui,...ij,vj->...uv", b, c, db) / w
+    dz_dy = -torch.einsum("ui,...ij,vj->...uv", db, c, b) / hgt
     return z, dz_dx, dz_dy
 
 

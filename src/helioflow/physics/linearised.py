@@ -85,20 +85,24 @@ class LinearisedTrace:
         """(S, H, W) flux (W/m^2) with the heliostat's errors at `tensors` (the effective values:
         canting without its mean, heights without planes; a missing entry stays at the
         linearisation point), differentiable in them; with_launched, also the (S,) power (W)
-        reflected towards the target plane. facets: (K,) long: only these facets' flux."""
+        reflected towards the target plane. facets: (K,) long: only these facets' flux. A tensor may
+        carry a leading sun-position axis, (S, ...): each image its own errors (what a per-image
+        derivative by autograd needs, uncertainty.predicted_spread)."""
         index = slice(None) if facets is None else facets
         moved = self.hits[:, index]
         for key, derivative in self.derivatives.items():
             if key not in tensors:
                 continue
             change = tensors[key] - self.at[key]
+            each = "s" if change.dim() > self.at[key].dim() else ""  # one value per sun position
             if key == "tracking":
-                moved = moved + torch.einsum("sfpdk,k->sfpd", derivative[:, index], change)
+                moved = moved + torch.einsum(f"sfpdk,{each}k->sfpd", derivative[:, index], change)
             elif key == "canting":
-                moved = moved + torch.einsum("sfpdk,fk->sfpd", derivative[:, index], change[index])
+                moved = moved + torch.einsum(f"sfpdk,{each}fk->sfpd", derivative[:, index], change[..., index, :])
             else:
-                local = torch.stack(deformation(change[index], self.facet_size[index], self.cells_per_side), -1)
-                moved = moved + torch.einsum("sfpdk,fpk->sfpd", derivative[:, index], local.flatten(1, 2))
+                local = torch.stack(deformation(change[..., index, :, :], self.facet_size[index],
+                                                self.cells_per_side), -1)
+                moved = moved + torch.einsum(f"sfpdk,{each}fpk->sfpd", derivative[:, index], local.flatten(-3, -2))
         n_sun = moved.shape[0]
         factor = optics.dni * optics.reflectivity
         if optics.transmittance is not None:
