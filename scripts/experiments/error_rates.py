@@ -67,10 +67,9 @@ def diagnose_seed(world: World, known: dict, seed: int, root: Path) -> dict:
     ids = [str(100_000 + i) for i in range(N_IMAGES)]
     held = list(np.random.default_rng(seed).choice(ids, HELD_OUT, replace=False))
     import_paint(folder, "AA39", folder / "data.h5", folder / "aa39.h5", holdout=held, dataset=f"seed{seed}")
-    figures = {k: folder / f"{k}.png" for k in ("signatures", "ranking", "residuals", "location", "ledger")}
     settings = {**DIAGNOSIS_DEFAULTS, "fit_images": N_IMAGES - HELD_OUT, "heldout_images": HELD_OUT, "max_effects": 1}
     return diagnose_dataset(folder / "data.h5", folder / "aa39.h5", {**BELIEVED, **known}, settings, folder / "diagnosis.json",
-                            figures, folder / "ledger.json")
+                            None, folder / "ledger.json")
 
 
 def named_in(result: dict) -> tuple[list[str], set[str]]:

@@ -63,10 +63,9 @@ def diagnosed(tmp_path_factory):
             ids = [str(100_000 + i) for i in range(N_IMAGES)]
             held = list(np.random.default_rng(0).choice(ids, HELD_OUT, replace=False))
             import_paint(folder, "AA39", folder / "data.h5", folder / "aa39.h5", holdout=held, dataset=case)
-            figures = {k: folder / f"{k}.png" for k in ("signatures", "ranking", "residuals", "location", "ledger")}
             settings = {**SETTINGS, "max_effects": max(1, len(CASES[case][1] or ()))}  # as many as are hidden
             done[case] = diagnose_dataset(folder / "data.h5", folder / "aa39.h5", BELIEVED, settings,
-                                          folder / "diagnosis.json", figures, folder / "ledger.json")
+                                          folder / "diagnosis.json", None, folder / "ledger.json")
         return done[case]
 
     return run
@@ -122,9 +121,8 @@ def test_a_canting_too_small_to_cut_a_quarter_is_named_by_its_fitted_tilts(tmp_p
     held = list(np.random.default_rng(0).choice(ids, HELD_OUT, replace=False))
     import_paint(tmp_path, "AA39", tmp_path / "data.h5", tmp_path / "aa39.h5", holdout=held, dataset="canting")
     camera = {"gain": "fit", "background_w_m2": "fit", "blur_px": 1.5}
-    figures = {k: tmp_path / f"{k}.png" for k in ("signatures", "ranking", "residuals", "location", "ledger")}
     result = diagnose_dataset(tmp_path / "data.h5", tmp_path / "aa39.h5", {**BELIEVED, "camera": camera}, SETTINGS,
-                              tmp_path / "diagnosis.json", figures, tmp_path / "ledger.json", plant="plant")
+                              tmp_path / "diagnosis.json", None, tmp_path / "ledger.json", plant="plant")
     ranking = result["ranking"]
     assert result["remaining"]["changes"] == ["tracking", "canting"], ranking[:3]
     canting = ranking[1]

@@ -775,10 +775,10 @@ def _measurements(ds, index: np.ndarray, scale: float, device: str | torch.devic
                         torch.as_tensor(ds.elevation_deg[index]).float().to(device), scale)
 
 
-def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict, output_json, figures: dict,
+def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict, output_json, figures: dict | None,
                      ledger_path, device: str = "cpu", plant: str = "") -> dict:
     """The `diagnose` rule: diagnosis/{dataset}.json and its figures (keys of `figures`:
-    signatures, ranking, residuals, ledger).
+    signatures, ranking, residuals, location, ledger; None: none drawn).
 
     Args:
         effects: the model's effect list for this dataset.
@@ -788,7 +788,6 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
             plant fit's values (diagnosis.shared.with_plant); no change to them is tried.
     """
     from helioflow.diagnosis.figures import plot_diagnosis
-
 
     ds = read_dataset(dataset_path)
     read_ledger(ledger_path)  # a broken ledger stops the rule before the fits, not after them
@@ -868,8 +867,9 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
         "verdict": (heldout["note"] + " " if heldout["note"] else "") + verdict(ranking, summary, remaining, location),
         "ledger": ledger,
     }
-    error = misplaced_flux(pred, everything.images, lost).numpy()
-    plot_diagnosis(result, ds, pred.numpy(), everything.images.numpy(), error, figures)
+    if figures is not None:
+        error = misplaced_flux(pred, everything.images, lost).numpy()
+        plot_diagnosis(result, ds, pred.numpy(), everything.images.numpy(), error, figures)
     write_text_atomic(output_json, json.dumps(result, indent=1))
     log.info("verdict: %s", result["verdict"])
     return result
