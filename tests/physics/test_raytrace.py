@@ -14,7 +14,7 @@ import torch
 from conftest import make_heliostat
 
 from helioflow.physics.geometry import normalize, sun_vector
-from helioflow.physics.raytrace import KERNEL_PIXEL_VARIANCE, Optics, trace
+from helioflow.physics.raytrace import KERNEL_PIXEL_VARIANCE, Optics, convolve, trace
 from helioflow.physics.reference import reference_trace
 from helioflow.physics.sun import SunShape
 from helioflow.physics.target import CAMERA_PIXEL_VARIANCE, TENT_VARIANCE, Target
@@ -421,3 +421,24 @@ def test_many_rays_on_few_points_are_traced_in_runs_that_bound_memory_with_the_s
                    for chunk in (5000, 1000))
     assert torch.allclose(whole, runs, rtol=1e-9, atol=1e-12 * float(whole.max()))
     assert whole.sum() > 0
+
+
+@pytest.mark.parametrize("shapes", [((64, 64), (109, 109), ((86, 64), (86, 64))), ((30, 20), (7, 11), ((3, 10), (0, 30))),
+                                    ((16, 16), (33, 5), ((32, 16), (2, 16)))])
+def test_a_window_of_the_convolution_is_the_same_part_of_the_full_convolution(shapes):
+    """The splat's convolution computes only the target's window, on a shorter circular FFT: it is
+    the full linear convolution there (no wrap-around), as numpy's direct sum gives it."""
+    (h, w), (hk, wk), window = shapes
+    g = torch.Generator().manual_seed(0)
+    images, kernels = torch.rand(2, 3, h, w, generator=g, dtype=torch.float64), torch.rand(1, 3, hk, wk, generator=g,
+                                                                                         dtype=torch.float64)
+    full = convolve(images, kernels)
+    direct = np.zeros((2, h + hk - 1, w + wk - 1))
+    for i in range(hk):
+        for j in range(wk):
+            direct[:, i : i + h, j : j + w] += (images * kernels[:, :, i : i + 1, j : j + 1]).sum(1).numpy()
+    assert full.numpy() == pytest.approx(direct, abs=1e-9)
+    (r0, rows), (c0, cols) = window
+    part = convolve(images, kernels, window)
+    assert part.shape == (2, rows, cols)
+    assert part.numpy() == pytest.approx(direct[:, r0 : r0 + rows, c0 : c0 + cols], abs=1e-9)

@@ -346,7 +346,6 @@ def _pixel_coefficients(c: _Rays, target: Target) -> tuple[list[dict], list[dict
     Column = (u + width/2)/pixel_width + 1/2, row = (height/2 - v)/pixel_height + 1/2 (one ring
     of padding left and top).
     """
-    rows, cols = target.resolution
     pw, ph = target.pixel_size
     scale = (1.0, 1.0 / pw, -1.0 / ph)
     shift = (0.0, target.width / (2 * pw) + 0.5, target.height / (2 * ph) + 0.5)
@@ -533,10 +532,12 @@ def splat_footprints(col: Tensor, row: Tensor, power: Tensor, target: Target, op
     deposited = deposit((col - (pad_c - mc))[:, None].expand_as(weights).flatten(0, 1),
                         (row - (pad_r - mr))[:, None].expand_as(weights).flatten(0, 1),
                         weights.flatten(0, 1), (rows + 2 * mr, cols + 2 * mc))
-    # (B, rows + 2 mr + 2 jr, cols + 2 mc + 2 jc) centred on the canvas; the clamp removes the FFT's
-    # round-off and the first order's own negative flux where the footprints end
-    flux = convolve(deposited.reshape(*weights.shape[:2], *deposited.shape[-2:]), kernel).clamp_min(0.0)
-    return flux[:, jr + mr : jr + mr + rows, jc + mc : jc + mc + cols] * target.pixel_area
+    # the target's (B, rows, cols) of the (B, rows + 2 mr + 2 jr, cols + 2 mc + 2 jc) convolution centred
+    # on the canvas; the clamp removes the FFT's round-off and the first order's own negative flux where
+    # the footprints end
+    flux = convolve(deposited.reshape(*weights.shape[:2], *deposited.shape[-2:]), kernel,
+                    ((jr + mr, rows), (jc + mc, cols))).clamp_min(0.0)
+    return flux * target.pixel_area
 
 
 def pixel_average(images: Tensor, excess: float) -> Tensor:
@@ -618,13 +619,20 @@ def footprint(density, unit: Tensor, path: Tensor, pixel: Tensor, reach: tuple[i
     return sum(columns[:, i::supersampling] for i in range(supersampling)) / supersampling**2
 
 
-def convolve(images: Tensor, kernels: Tensor) -> Tensor:
-    """Full linear convolutions of (B, J, H, W) images with (B, J, Hk, Wk) kernels via FFT, summed
-    over J (in the Fourier domain: one inverse transform): (B, H+Hk-1, W+Wk-1)."""
+def convolve(images: Tensor, kernels: Tensor, window: tuple[tuple[int, int], tuple[int, int]] | None = None) -> Tensor:
+    """Linear convolutions of (B, J, H, W) images with (B, J, Hk, Wk) kernels via FFT, summed over J
+    (in the Fourier domain: one inverse transform): the full (B, H+Hk-1, W+Wk-1), or only its
+    `window` ((first row, rows), (first column, columns)) of it. A window is taken from a circular
+    convolution of the shortest fast length L that leaves it free of wrap-around (L >= first + n
+    and L >= full - first per axis, and no shorter than either input): for a 64 px image spread by
+    a Buie sun's 109 px footprint, 150 instead of 240 per axis."""
     full = (images.shape[-2] + kernels.shape[-2] - 1, images.shape[-1] + kernels.shape[-1] - 1)
-    size = tuple(_fft_size(n) for n in full)
+    window = window or ((0, full[0]), (0, full[1]))
+    size = tuple(_fft_size(max(first + n, whole - first, images.shape[axis], kernels.shape[axis]))
+                 for (first, n), whole, axis in zip(window, full, (-2, -1)))
     spectrum = (torch.fft.rfft2(images, s=size) * torch.fft.rfft2(kernels, s=size)).sum(1)
-    return torch.fft.irfft2(spectrum, s=size)[..., : full[0], : full[1]]
+    (r0, rows), (c0, cols) = window
+    return torch.fft.irfft2(spectrum, s=size)[..., r0 : r0 + rows, c0 : c0 + cols]
 
 
 def _fft_size(n: int) -> int:
