@@ -369,14 +369,15 @@ def write_paint_folder(folder: Path, world: World, n_images: int = 40, rays: int
 DEMO = World(tracking_mrad=(1.2, -0.9), camera=(0.03, 1.5))  # the PAINT demo: workflow/variants/paint_world_demo.yaml
 
 
-def plant_worlds(n: int, seed: int, sun: tuple = ("gaussian", 2.51), camera: tuple = (0.03, 1.5)
-                 ) -> dict[str, tuple[tuple[float, float, float], World]]:
+def plant_worlds(n: int, seed: int, sun: tuple = ("gaussian", 2.51), camera: tuple = (0.03, 1.5),
+                 canting_rms_mrad: tuple[float, float] = (0.5, 1.0)) -> dict[str, tuple[tuple[float, float, float], World]]:
     """{name: (pivot offset from AA39's (m, ENU), world)} of a plant of n heliostats under one sun
     and one camera (what every heliostat of a calibration campaign shares), each with its own hidden
     effects drawn at random: a tracking error always (joint offsets, 0.3-1.5 mrad each, random
-    sign), and on about a third each a facet canting error (0.5-1 mrad RMS), a surface bump
-    (0.5-1 mm high, 0.3 m wide, on one facet) or a slope error (0.5-1 mrad). Pivots on rows 8 m
-    apart east-west and 10 m north-south around AA39's (names P000, P001, ...)."""
+    sign), and on about a third each a facet canting error (RMS drawn from `canting_rms_mrad`), a
+    surface bump (0.5-1 mm high, 0.3 m wide, on one facet) or a slope error (0.5-1 mrad). Pivots on
+    rows 8 m apart east-west and 10 m north-south around AA39's (names P000, P001, ...). The same
+    seed draws the same plant whatever the canting's range (only its size scales)."""
     rng = np.random.default_rng(seed)
     out = {}
     for i in range(n):
@@ -386,7 +387,7 @@ def plant_worlds(n: int, seed: int, sun: tuple = ("gaussian", 2.51), camera: tup
         truth = {"tracking_mrad": tracking, "hidden": ["tracking"] + ([kind] if kind else [])}
         world = World(tracking_mrad=tracking, sun=sun, camera=camera, truth=truth)
         if kind == "canting":
-            world.canting_mrad = rng.normal(0.0, rng.uniform(0.5, 1.0), (4, 2))
+            world.canting_mrad = rng.normal(0.0, rng.uniform(*canting_rms_mrad), (4, 2))
         elif kind == "bump":
             world.bump = (int(rng.integers(0, 4)), float(rng.uniform(0.5, 1.0)), 0.3)
         elif kind == "slope":

@@ -7,6 +7,10 @@ the RMS over the dataset's sun positions of the difference between the fitted ki
 of the mirror normal from its ideal (helioflow's, the plant model's tracking) and the true deviation
 (the generator's own kinematics with and without its joint offsets, of the mean facet normal with
 and without its canting errors: a mean facet tilt points the spot as the kinematics do), in mrad.
+Its σ: the fitted tracking's covariance (the model file's uncertainty) carried to the deviation,
+sqrt(tr Σ_s) per sun position by central differences, RMS over them; a heliostat's pointing counts as
+covered when its recovered pointing is at most twice that (a 2-D Gaussian error lies within twice the
+RMS of its length 98 % of the time when it is isotropic).
 The worlds are drawn again from the generator's seed (`--seed`, the demo's by default). The shared effects:
 what plant/shared.json changed, against the camera and sun the generator used.
 
@@ -61,21 +65,50 @@ def true_deviation(offset_enu_m, world: World, azimuth_deg, elevation_deg) -> np
     return np.asarray(out)
 
 
-def fitted_deviation(model, azimuth_deg, elevation_deg, aim_m) -> np.ndarray:
-    """(S, 3) the fitted kinematics' mirror normal minus the ideal one (ENU), by helioflow."""
+def fitted_deviation(model, azimuth_deg, elevation_deg, aim_m, tracking_mrad: torch.Tensor | None = None) -> np.ndarray:
+    """(S, 3) the fitted kinematics' mirror normal minus the ideal one (ENU), by helioflow (with the
+    model's fitted tracking errors, or `tracking_mrad` (5,))."""
     h = model.heliostat.to("cpu", torch.float64)
     sun = helioflow_sun(torch.deg2rad(torch.as_tensor(azimuth_deg, dtype=torch.float64)),
                         torch.deg2rad(torch.as_tensor(elevation_deg, dtype=torch.float64)))
     aim = torch.as_tensor(aim_m, dtype=torch.float64)
-    tracking = model.fitted.tensors["tracking"].detach().cpu().double().reshape(5)
+    tracking = fitted_tracking(model) if tracking_mrad is None else tracking_mrad
     fitted = orientation(replace(h, tracking_error=tracking * 1e-3), sun, aim)[..., 2]
     ideal = orientation(replace(h, tracking_error=torch.zeros(5, dtype=torch.float64)), sun, aim)[..., 2]
     return (fitted - ideal).numpy()
 
 
-def score(results: Path, paint_dir: Path, plant: str, model_name: str, seed: int) -> dict:
+def fitted_tracking(model) -> torch.Tensor:
+    """(5,) the model's fitted tracking errors (mrad)."""
+    return model.fitted.tensors["tracking"].detach().cpu().double().reshape(5)
+
+
+def pointing_sigma(model, azimuth_deg, elevation_deg, aim_m, step_mrad: float = 0.01) -> float | None:
+    """The σ of `fitted_deviation` (mrad): sqrt(tr Σ_s), Σ_s its (3, 3) covariance at each sun
+    position from the fitted tracking's, RMS over the sun positions; None for a model without an
+    uncertainty or without its 5 tracking entries."""
+    u = model.fitted.uncertainty
+    at = [] if u is None else [k for k, name in enumerate(u.names) if name.startswith("tracking.")]
+    if len(at) != 5:
+        return None
+    tracking = fitted_tracking(model)
+    columns = []
+    for k in range(5):
+        step = torch.zeros(5, dtype=torch.float64)
+        step[k] = step_mrad
+        plus, minus = (fitted_deviation(model, azimuth_deg, elevation_deg, aim_m, tracking + s * step) for s in (1, -1))
+        columns.append((plus - minus) / (2 * step_mrad) * 1e3)  # (S, 3) mrad per mrad
+    jacobian = np.stack(columns, -1)
+    variance = np.einsum("sak,kl,sal->s", jacobian, np.asarray(u.covariance)[np.ix_(at, at)], jacobian)
+    return float(np.sqrt(np.clip(variance, 0.0, None).mean()))
+
+
+def score(results: Path, paint_dir: Path, plant: str, model_name: str, seed: int,
+          canting_rms_mrad: tuple[float, float] = (0.5, 1.0)) -> dict:
+    """The run in `results` against the plant in `paint_dir` (drawn by plant_worlds with `seed` and
+    `canting_rms_mrad`): per heliostat and over the plant (module docstring)."""
     truth = json.loads((paint_dir / "truth.json").read_text())
-    worlds = plant_worlds(len(truth), seed)
+    worlds = plant_worlds(len(truth), seed, canting_rms_mrad=canting_rms_mrad)
     if any(worlds[n][1].truth["hidden"] != t["hidden"] for n, t in truth.items()):
         raise SystemExit(f"{paint_dir}/truth.json was not drawn with seed {seed}: give the plant's --seed")
     rows = []
@@ -88,16 +121,23 @@ def score(results: Path, paint_dir: Path, plant: str, model_name: str, seed: int
         hidden = sorted(EFFECT_OF[h] for h in t["hidden"])
         d_true = true_deviation(t["offset_enu_m"], worlds[name][1], ds.azimuth_deg, ds.elevation_deg)
         d_fit = fitted_deviation(model, ds.azimuth_deg, ds.elevation_deg, ds.attrs["target_center_m"])
+        recovered = float(np.sqrt((np.linalg.norm(d_fit - d_true, axis=1) ** 2).mean()) * 1e3)
+        sigma = pointing_sigma(model, ds.azimuth_deg, ds.elevation_deg, ds.attrs["target_center_m"])
         rows.append({"heliostat": name, "hidden": hidden, "named": named, "right": named == hidden,
                      "true_pointing_mrad": round(float(np.sqrt((np.linalg.norm(d_true, axis=1) ** 2).mean()) * 1e3), 3),
-                     "pointing_recovered_mrad": round(float(np.sqrt((np.linalg.norm(d_fit - d_true, axis=1) ** 2)
-                                                                    .mean()) * 1e3), 3)})
+                     "pointing_recovered_mrad": round(recovered, 3),
+                     "pointing_sigma_mrad": None if sigma is None else round(sigma, 4),
+                     "pointing_covered": None if sigma is None else bool(recovered <= 2.0 * sigma)})
     shared_path = results / "plant" / "shared.json"
     shared = json.loads(shared_path.read_text())[plant] if shared_path.exists() else None
     return {"heliostats": rows,
             "named_right": sum(r["right"] for r in rows) / len(rows),
             "pointing_recovered_rms_mrad": round(float(np.sqrt(np.mean([r["pointing_recovered_mrad"] ** 2
                                                                           for r in rows]))), 3),
+            "canting_named": (sum("canting" in r["named"] for r in rows if "canting" in r["hidden"])
+                              / max(1, sum("canting" in r["hidden"] for r in rows))),
+            "pointing_covered": (None if any(r["pointing_covered"] is None for r in rows)
+                                 else sum(r["pointing_covered"] for r in rows) / len(rows)),
             "shared_changes": None if shared is None else shared["changes"],
             "shared_values": None if shared is None else {n: v for s in shared["shared"] for n, v in s["values"].items()}}
 
@@ -109,16 +149,21 @@ def main() -> None:
     ap.add_argument("--plant", default="plant")
     ap.add_argument("--model", default="drt")
     ap.add_argument("--seed", type=int, default=PLANT_DEMO["seed"], help="the seed plant_worlds drew the plant with")
+    ap.add_argument("--canting-rms-mrad", type=float, nargs=2, default=(0.5, 1.0),
+                    help="the range plant_worlds drew the cantings' RMS from")
     ap.add_argument("--json")
     args = ap.parse_args()
-    out = score(Path(args.results), Path(args.paint_dir), args.plant, args.model, args.seed)
-    print("| heliostat | hidden | named | right | true pointing (mrad) | fitted - true (mrad RMS) |")
-    print("|---|---|---|---|---|---|")
+    out = score(Path(args.results), Path(args.paint_dir), args.plant, args.model, args.seed,
+                tuple(args.canting_rms_mrad))
+    print("| heliostat | hidden | named | right | true pointing (mrad) | fitted - true (mrad RMS) | its σ (mrad) |")
+    print("|---|---|---|---|---|---|---|")
     for r in out["heliostats"]:
         print(f"| {r['heliostat']} | {', '.join(r['hidden'])} | {', '.join(r['named']) or 'none'} | "
-              f"{'yes' if r['right'] else 'no'} | {r['true_pointing_mrad']} | {r['pointing_recovered_mrad']} |")
-    print(f"named right: {out['named_right']:.0%}; pointing recovered to {out['pointing_recovered_rms_mrad']} mrad RMS; "
-          f"shared changes: {out['shared_changes']} {out['shared_values'] or ''}")
+              f"{'yes' if r['right'] else 'no'} | {r['true_pointing_mrad']} | {r['pointing_recovered_mrad']} | "
+              f"{r['pointing_sigma_mrad']} |")
+    covered = "not known" if out["pointing_covered"] is None else f"{out['pointing_covered']:.0%}"
+    print(f"named right: {out['named_right']:.0%}; pointing recovered to {out['pointing_recovered_rms_mrad']} mrad RMS, "
+          f"within 2 sigma on {covered}; canting named on {out['canting_named']:.0%} of those with one; shared changes: {out['shared_changes']} {out['shared_values'] or ''}")
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
 

@@ -10,6 +10,7 @@ import json
 import os
 import shutil
 import subprocess
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -43,9 +44,11 @@ def test_the_tiny_experiment_through_the_slurm_profile_gives_the_local_outputs(t
     config = _tiny()
     config["networks"] = {"nearest": {}}
     local, cluster = (_workdir(tmp_path / name, config) for name in ("local", "slurm"))
-    proc = snakemake(local, "-j2", "all")
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    proc = snakemake(cluster, *SLURM_ARGS, "all", timeout=900)
+    with ThreadPoolExecutor(1) as pool:  # the local run meanwhile: the SLURM run mostly waits on sbatch and squeue
+        local_run = pool.submit(snakemake, local, "-j1", "all")
+        proc = snakemake(cluster, *SLURM_ARGS, "all", timeout=900)
+        local_proc = local_run.result()
+    assert local_proc.returncode == 0, local_proc.stderr[-3000:]
     assert proc.returncode == 0, (proc.stdout + proc.stderr)[-3000:]
     submitted = (proc.stdout + proc.stderr).count("has been submitted with SLURM jobid")
     assert submitted >= 8, f"{submitted} jobs went through sbatch"  # surfaces, trace, plot, train, evaluate x 2 ...
