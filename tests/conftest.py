@@ -13,6 +13,10 @@ from helioflow.models.training import train
 from helioflow.physics.heliostat import Heliostat, ideal_heliostat
 
 
+if os.environ.get("PYTEST_XDIST_WORKER"):  # a worker beside others (pyproject: -n auto): one core each, as the
+    torch.set_num_threads(1)               # pipeline's jobs (torch_threads 1); two threads each would oversubscribe
+
+
 class Stopped(Exception):
     """Stands for a killed training job."""
 
