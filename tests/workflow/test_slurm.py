@@ -23,7 +23,8 @@ SLURM_ARGS = ("--profile", "workflow/profiles/slurm",
               # this machine's partition, no accounting (start_slurm.sh), the profile's resources otherwise
               "--default-resources", "slurm_partition=helioflow", "mem_mb=1000", "runtime=10",
               "--slurm-no-account", "--slurm-status-command", "squeue",
-              "--slurm-init-seconds-before-status-checks", "2", "--jobs", "4")
+              "--slurm-init-seconds-before-status-checks", "2", "--seconds-between-status-checks", "2",
+              "--jobs", "4")
 
 
 def _slurm_up() -> bool:
