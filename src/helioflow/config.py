@@ -22,14 +22,45 @@ from helioflow.workflow import facing
 SCHEMA_PATH = Path(__file__).resolve().parents[2] / "workflow" / "schemas" / "config.schema.yaml"
 
 
-def load_config(path: str | Path) -> dict:
-    """Read and validate a config YAML file; returns the config with schema defaults filled in."""
+class _StrictLoader(yaml.SafeLoader):
+    """YAML's safe loader that refuses a mapping holding one key twice (plain YAML keeps the last
+    silently: a variant with two `networks:` blocks would run with the second alone)."""
+
+    def construct_mapping(self, node, deep=False):
+        seen = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            if key == "<<":  # a merge key: what it brings in may be overridden, as YAML means
+                continue
+            if key in seen:
+                raise ConfigError(f"{self.name}: the key '{key}' appears twice in one mapping (lines "
+                                  f"{seen[key] + 1} and {key_node.start_mark.line + 1}): keep one")
+            seen[key] = key_node.start_mark.line
+        return super().construct_mapping(node, deep)
+
+
+def read_yaml(path: str | Path):
+    """A config YAML file's content, read strictly (`_StrictLoader`: a key twice in one mapping is
+    a ConfigError naming the file, the key and both lines)."""
     path = Path(path)
     try:
-        config = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
+        text = path.read_text()
+    except OSError as exc:
         raise ConfigError(f"{path}: cannot read the config: {exc}") from None
-    return validate_config(config, source=str(path))
+    loader = _StrictLoader(text)
+    loader.name = str(path)
+    try:
+        return loader.get_single_data()
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: cannot read the config: {exc}") from None
+    finally:
+        loader.dispose()
+
+
+def load_config(path: str | Path) -> dict:
+    """Read (strictly, `read_yaml`) and validate a config YAML file; returns the config with schema
+    defaults filled in."""
+    return validate_config(read_yaml(path), source=str(path))
 
 
 def validate_config(config: dict, schema_path: str | Path = SCHEMA_PATH, source: str = "config") -> dict:

@@ -441,6 +441,9 @@ def test_bad_file_gives_one_line_naming_it_and_leaves_nothing_half_written(case,
         assert not [p for p in tmp_path.rglob("*") if p.is_file()], "a half-written output was left"
 
 
+TWICE = "networks:\n  nearest: {}\nexperiment: twice\nnetworks:\n  drt: {}\n"  # a variant with a key twice
+TWICE_MESSAGE = "helioflow: variant.yaml: the key 'networks' appears twice in one mapping (lines 1 and 4): keep one"
+
 # --- the table in docs/bad_input.md ---------------------------------------------------------------
 
 
@@ -455,6 +458,7 @@ def table(tmp: Path, monkeypatch) -> str:
     """docs/bad_input.md: every case above with the message it gives now."""
     rows = [f"| {c.bad_input} | `helioflow: {_shown(_message(c))}` |" for c in CONFIG_CASES]
     rows += [f"| {c.bad_input} | {c.expect} |" for c in ACCEPTED_CASES]
+    rows.append(f"| a key given twice in a `--configfile` variant (two `networks:` blocks) | `{TWICE_MESSAGE}` |")
     for i, c in enumerate(FILE_CASES):
         with monkeypatch.context() as m:
             folder = tmp / f"case{i}"
@@ -488,6 +492,7 @@ if __name__ == "__main__":
     with tempfile.TemporaryDirectory() as tmp, pytest.MonkeyPatch.context() as mp:
         DOC.write_text(table(Path(tmp), mp))
     print(f"wrote {DOC}", file=sys.stderr)
+    sys.exit(0)  # the snakemake cases below need the tests' support package, which a script does not see
 
 
 # --- through snakemake ----------------------------------------------------------------------------
@@ -505,6 +510,18 @@ def test_snakemake_dry_run_stops_with_the_one_line(case, tmp_path):
     assert lines == [f"helioflow: {_message(case)}"], proc.stderr
     assert not (workdir / "results").exists() and not (workdir / "PWNED").exists()
     assert int(peak.read_text()) < 500 * 1024, f"snakemake -n peaked at {int(peak.read_text()) // 1024} MB"
+
+
+def test_a_key_given_twice_in_a_variant_stops_snakemake_with_one_line(tmp_path):
+    """YAML keeps the last of a key given twice, so a variant with two `networks:` blocks would run with
+    the second alone: every config file snakemake read is read again strictly."""
+    workdir = _workdir(tmp_path / "run", _config(lambda c: None))
+    (workdir / "variant.yaml").write_text(TWICE)
+    proc = snakemake(workdir, "-n", "all", "--configfile", "variant.yaml")
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert proc.returncode != 0
+    assert lines == [TWICE_MESSAGE], proc.stderr
+    assert not (workdir / "results").exists()
 
 
 def test_a_results_path_that_is_a_file_stops_snakemake_with_one_line(tmp_path):

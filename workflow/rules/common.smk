@@ -1,9 +1,10 @@
 # Validate the config at parse time and bind the package's pure helpers.
 import json
+import os
 import sys
 
 from helioflow.batch import batched_datasets, batched_heliostats, unbatched
-from helioflow.config import validate_config
+from helioflow.config import read_yaml, validate_config
 from helioflow.errors import HelioflowError
 from helioflow.workflow import (
     NAME,
@@ -50,6 +51,9 @@ from helioflow.workflow import (
 )
 
 try:
+    for configfile_path in workflow.configfiles:  # snakemake's own reading keeps the last of a key given twice
+        shown = os.path.relpath(configfile_path)  # as the user named it, where it lies below the working folder
+        read_yaml(configfile_path if shown.startswith("..") else shown)
     # the field's heliostats and calibration datasets, and the leave-one-out folds of PAINT
     # datasets, become config entries of their own
     config = expand_config(validate_config(config, workflow.source_path("../schemas/config.schema.yaml")))
