@@ -136,6 +136,8 @@ def score(results: Path, paint_dir: Path, plant: str, model_name: str, seed: int
                                                                           for r in rows]))), 3),
             "canting_named": (sum("canting" in r["named"] for r in rows if "canting" in r["hidden"])
                               / max(1, sum("canting" in r["hidden"] for r in rows))),
+            "pointing_over_sigma_median": (None if any(r["pointing_sigma_mrad"] is None for r in rows) else round(
+                float(np.median([r["pointing_recovered_mrad"] / r["pointing_sigma_mrad"] for r in rows])), 3)),
             "pointing_covered": (None if any(r["pointing_covered"] is None for r in rows)
                                  else sum(r["pointing_covered"] for r in rows) / len(rows)),
             "shared_changes": None if shared is None else shared["changes"],
@@ -163,7 +165,8 @@ def main() -> None:
               f"{r['pointing_sigma_mrad']} |")
     covered = "not known" if out["pointing_covered"] is None else f"{out['pointing_covered']:.0%}"
     print(f"named right: {out['named_right']:.0%}; pointing recovered to {out['pointing_recovered_rms_mrad']} mrad RMS, "
-          f"within 2 sigma on {covered}; canting named on {out['canting_named']:.0%} of those with one; shared changes: {out['shared_changes']} {out['shared_values'] or ''}")
+          f"within 2 sigma on {covered} (recovered / sigma median {out['pointing_over_sigma_median']}: a sigma far "
+          f"above the error covers without telling how well the pointing is known); canting named on {out['canting_named']:.0%} of those with one; shared changes: {out['shared_changes']} {out['shared_values'] or ''}")
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
 
