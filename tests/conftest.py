@@ -10,8 +10,6 @@ import torch
 import yaml
 
 from helioflow.models.training import train
-from helioflow.physics.heliostat import Heliostat, ideal_heliostat
-
 
 if os.environ.get("PYTEST_XDIST_WORKER"):  # a worker beside others (pyproject: -n auto): one core each, as the
     torch.set_num_threads(1)               # pipeline's jobs (torch_threads 1); two threads each would oversubscribe
@@ -40,13 +38,6 @@ def train_stopped_after():
             train(model, data, loop, checkpoint, progress=False)
 
     return run
-
-
-def make_heliostat(rows=2, cols=2, width=1.0, height=1.0, gap=0.02, focal=None, canting=None,
-                   position=(0.0, 0.0, 0.0), mount="az_el", n_control=6, dtype=torch.float64) -> Heliostat:
-    """An ideal heliostat (physics.heliostat.ideal_heliostat) with the tests' defaults: 2 x 2 facets
-    of 1 m, float64, at the origin."""
-    return ideal_heliostat(rows, cols, width, height, gap, position, mount, canting, focal, n_control, dtype)
 
 
 SNAKEMAKE = Path(sys.executable).parent / "snakemake"

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from conftest import make_heliostat
+from support.heliostats import make_heliostat
 
 from helioflow.physics.geometry import normalize, sun_vector
 from helioflow.physics.heliostat import (

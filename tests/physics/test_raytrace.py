@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from conftest import make_heliostat
+from support.heliostats import make_heliostat
 
 from helioflow.physics.geometry import normalize, sun_vector
 from helioflow.physics.raytrace import KERNEL_PIXEL_VARIANCE, Optics, convolve, trace

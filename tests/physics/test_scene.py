@@ -1,7 +1,7 @@
 """A dataset's scene: the target a model of the dataset traces on."""
 
 import pytest
-from conftest import make_heliostat
+from support.heliostats import make_heliostat
 
 from helioflow.physics.scene import dataset_scene
 from helioflow.physics.target import CAMERA_PIXEL_VARIANCE, TENT_VARIANCE
