@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from helioflow.config import load_config, validate_config
+from helioflow.config import MAX_ALIAS_NODES, load_config, read_yaml, validate_config
 from helioflow.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -130,6 +130,56 @@ def test_load_config_names_the_file(tmp_path):
     bad.write_text((REPO / "config.yaml").read_text().replace("device: cpu", "device: gpu"))
     with pytest.raises(ConfigError, match=r"bad.yaml: device = 'gpu'"):
         load_config(bad)
+
+
+def _laughs(levels: int = 8, mapping: bool = False) -> str:
+    """Nested aliases ("billion laughs"): nine of the level below on each of `levels` levels."""
+    if mapping:
+        lines = ["m0: &m0 {" + ", ".join(f"k{j}: x" for j in range(9)) + "}"]
+        lines += [f"m{i}: &m{i} {{<<: [" + ", ".join([f"*m{i - 1}"] * 9) + "]}" for i in range(1, levels + 1)]
+    else:
+        lines = ["a0: &a0 [x, x, x, x, x, x, x, x, x]"]
+        lines += [f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]" for i in range(1, levels + 1)]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("mapping", [False, True], ids=["lists", "merge keys"])
+def test_read_yaml_refuses_aliases_that_expand_past_the_bound_in_one_line(tmp_path, mapping):
+    laughs = tmp_path / "laughs.yaml"
+    laughs.write_text(_laughs(mapping=mapping))
+    with pytest.raises(ConfigError) as caught:
+        read_yaml(laughs)
+    message = str(caught.value)
+    assert "\n" not in message and message.startswith(f"{laughs}: its aliases expand to ")
+    assert message.endswith(f"more than the bound {MAX_ALIAS_NODES:,}; write the values out")
+    if not mapping:  # level i: a list of nine of level i - 1, (9^(i + 2) - 1) / 8 nodes; the nine keys, the top
+        expanded = 1 + 9 + sum((9 ** (i + 2) - 1) // 8 for i in range(9))
+        assert f" {expanded - 28:,} nodes beyond the 28 written" in message
+
+
+def test_read_yaml_refuses_an_alias_inside_the_collection_it_names(tmp_path):
+    loop = tmp_path / "loop.yaml"
+    loop.write_text("experiment: x\nnetworks: &n {cgan: *n}\n")
+    with pytest.raises(ConfigError, match=r"loop.yaml: line 2: an alias inside the collection it names \(line 2\)"):
+        read_yaml(loop)
+
+
+def test_read_yaml_reads_a_few_aliases_and_merge_keys(tmp_path):
+    few = tmp_path / "few.yaml"
+    few.write_text("defaults: &d {steps: 3, lr: 0.01}\nnetworks:\n  cgan: {<<: *d, steps: 5}\n  nerf: *d\n"
+                   "sun: &sun [[180.0, 45.0], [200.0, 30.0]]\nagain: *sun\n" + _laughs(levels=3))
+    data = read_yaml(few)
+    assert data["networks"] == {"cgan": {"steps": 5, "lr": 0.01}, "nerf": {"steps": 3, "lr": 0.01}}
+    assert data["again"] == [[180.0, 45.0], [200.0, 30.0]] and len(data["a3"]) == 9
+    with pytest.raises(ConfigError, match="the key 'steps' appears twice"):  # merge keys aside, still strict
+        few.write_text("defaults: &d {lr: 0.01}\ncgan: {<<: *d, steps: 5, steps: 6}\n")
+        read_yaml(few)
+
+
+@pytest.mark.parametrize("path", [REPO / "config.yaml", *sorted((REPO / "workflow" / "variants").glob("*.yaml"))],
+                         ids=lambda p: p.name)
+def test_the_shipped_configs_are_far_below_the_alias_bound(path):
+    assert read_yaml(path) == yaml.safe_load(path.read_text())
 
 
 def test_a_variant_removes_default_entries_and_sections_with_null():

@@ -29,9 +29,9 @@ class _StrictLoader(yaml.SafeLoader):
     def construct_mapping(self, node, deep=False):
         seen = {}
         for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":  # `<<`: what it brings in may be overridden, as
+                continue  # YAML means (and the merge tag has no constructor of its own)
             key = self.construct_object(key_node, deep=True)
-            if key == "<<":  # a merge key: what it brings in may be overridden, as YAML means
-                continue
             if key in seen:
                 raise ConfigError(f"{self.name}: the key '{key}' appears twice in one mapping (lines "
                                   f"{seen[key] + 1} and {key_node.start_mark.line + 1}): keep one")
@@ -39,9 +39,49 @@ class _StrictLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep)
 
 
+# nodes that a config file's aliases (`*name`, `<<: *name`) may add when written out: a real config
+# adds a few hundred; nested aliases ("billion laughs") add 9^9 from a 500-byte file, which the
+# config's checks would then walk for minutes (a file's own nodes are not bounded here: a list layout
+# of 200,000 heliostats is 800,000 of them)
+MAX_ALIAS_NODES = 100_000
+
+
+def _alias_expansion(root: yaml.Node, name: str) -> tuple[int, int]:
+    """(nodes written, nodes the composed graph `root` becomes with every alias written out): each
+    node counted once per path to it, memoised per node, so that nested aliases are counted in time
+    linear in the nodes written. A ConfigError for an alias inside the collection it names (YAML
+    allows it; written out it never ends)."""
+    sizes: dict[int, int] = {}
+    open_nodes: set[int] = set()  # expanded, not yet sized: the ancestors of the node on top
+    stack = [root]
+    while stack:
+        node = stack[-1]
+        if id(node) in sizes:
+            stack.pop()
+            continue
+        if isinstance(node, yaml.MappingNode):
+            children = [child for pair in node.value for child in pair]
+        else:
+            children = node.value if isinstance(node, yaml.SequenceNode) else []
+        if id(node) not in open_nodes:
+            open_nodes.add(id(node))
+            for child in children:
+                if id(child) in open_nodes:
+                    raise ConfigError(f"{name}: line {child.start_mark.line + 1}: an alias inside the collection "
+                                      f"it names (line {node.start_mark.line + 1}) never ends: write the values out")
+                if id(child) not in sizes:
+                    stack.append(child)
+            continue
+        sizes[id(node)] = 1 + sum(sizes[id(child)] for child in children)
+        open_nodes.discard(id(node))
+        stack.pop()
+    return len(sizes), sizes[id(root)]
+
+
 def read_yaml(path: str | Path):
-    """A config YAML file's content, read strictly (`_StrictLoader`: a key twice in one mapping is
-    a ConfigError naming the file, the key and both lines)."""
+    """A config YAML file's content, read strictly (`_StrictLoader`): a key twice in one mapping is
+    a ConfigError naming the file, the key and both lines; so are aliases that add more than
+    MAX_ALIAS_NODES nodes when written out (counted before they are, `_alias_expansion`)."""
     path = Path(path)
     try:
         text = path.read_text()
@@ -50,7 +90,14 @@ def read_yaml(path: str | Path):
     loader = _StrictLoader(text)
     loader.name = str(path)
     try:
-        return loader.get_single_data()
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        written, expanded = _alias_expansion(node, str(path))
+        if expanded - written > MAX_ALIAS_NODES:
+            raise ConfigError(f"{path}: its aliases expand to {expanded - written:,} nodes beyond the {written:,} "
+                              f"written, more than the bound {MAX_ALIAS_NODES:,}; write the values out")
+        return loader.construct_document(node)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: cannot read the config: {exc}") from None
     finally:

@@ -7,6 +7,7 @@ import math
 import re
 import shutil
 import sys
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -443,6 +444,11 @@ def test_bad_file_gives_one_line_naming_it_and_leaves_nothing_half_written(case,
 
 TWICE = "networks:\n  nearest: {}\nexperiment: twice\nnetworks:\n  drt: {}\n"  # a variant with a key twice
 TWICE_MESSAGE = "helioflow: variant.yaml: the key 'networks' appears twice in one mapping (lines 1 and 4): keep one"
+# a variant of nested aliases ("billion laughs"): a list of nine, then nine of the level below, eight times
+LAUGHS = "a0: &a0 [x, x, x, x, x, x, x, x, x]\n" + "".join(
+    f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]\n" for i in range(1, 9))
+LAUGHS_MESSAGE = ("helioflow: variant.yaml: its aliases expand to 490,329,036 nodes beyond the 28 written, more than the "
+                  "bound 100,000; write the values out")
 
 # --- the table in docs/bad_input.md ---------------------------------------------------------------
 
@@ -459,6 +465,8 @@ def table(tmp: Path, monkeypatch) -> str:
     rows = [f"| {c.bad_input} | `helioflow: {_shown(_message(c))}` |" for c in CONFIG_CASES]
     rows += [f"| {c.bad_input} | {c.expect} |" for c in ACCEPTED_CASES]
     rows.append(f"| a key given twice in a `--configfile` variant (two `networks:` blocks) | `{TWICE_MESSAGE}` |")
+    rows.append(f"| a `--configfile` variant of nested aliases (a \"billion laughs\", 9^9 values from under 500 bytes) "
+                f"| `{LAUGHS_MESSAGE}` |")
     for i, c in enumerate(FILE_CASES):
         with monkeypatch.context() as m:
             folder = tmp / f"case{i}"
@@ -521,6 +529,24 @@ def test_a_key_given_twice_in_a_variant_stops_snakemake_with_one_line(tmp_path):
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
     assert proc.returncode != 0
     assert lines == [TWICE_MESSAGE], proc.stderr
+    assert not (workdir / "results").exists()
+
+
+def test_a_variant_of_nested_aliases_stops_snakemake_at_once_with_one_line(tmp_path):
+    """Nested aliases written out are 9^9 values, which the config's checks would walk for minutes:
+    their count, from the YAML before it is built, stops the run (snakemake itself keeps lists as they
+    are; a baseline `snakemake -n` takes about 4 s)."""
+    workdir = _workdir(tmp_path / "run", _config(lambda c: None))
+    (workdir / "variant.yaml").write_text(LAUGHS)
+    peak = tmp_path / "peak_kb"
+    start = time.monotonic()
+    proc = snakemake(workdir, "-n", "all", "--configfile", "variant.yaml", timeout=60, peak_rss=peak)
+    seconds = time.monotonic() - start
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert proc.returncode != 0
+    assert lines == [LAUGHS_MESSAGE], proc.stderr
+    assert seconds < 10, f"snakemake -n took {seconds:.1f} s"
+    assert int(peak.read_text()) < 500 * 1024, f"snakemake -n peaked at {int(peak.read_text()) // 1024} MB"
     assert not (workdir / "results").exists()
 
 
