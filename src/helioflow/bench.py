@@ -56,7 +56,8 @@ from helioflow.physics.raytrace import POOL_SIZE, sample_pool, trace
 from helioflow.physics.target import Target
 from helioflow.scoring.metrics import psnr as metric_psnr
 
-SCENE_HELIOSTAT = HeliostatSpec("bench", (0.0, 60.0, 0.0), "az_el", 1, 1, 2.0, 2.0, 0.0, None, None, 6, 0.5, 1.0, 0.0, 1)
+SCENE_HELIOSTAT = HeliostatSpec("bench", (0.0, 60.0, 0.0), "az_el", 1, 1, 2.0, 2.0, 0.0, None, None, 6, 0.5, 1.0,
+                                0.0, 1)
 SCENE_EFFECTS = {"sunshape": {"kind": "buie", "csr": 0.1}, "slope_error": {"sigma_mrad": 0.5}, "tracking": {},
                  "surface": {}}
 # 16 sun positions (azimuth, elevation deg) over the calibration sky; the first is the one-position scene's
@@ -141,6 +142,7 @@ def time_to_psnr(reference: torch.Tensor, batch: int, goal_db: float = 40.0) -> 
 
 
 def raytrace(threads: int, reference_rays: int) -> None:
+    """The raytrace benchmark (module docstring): throughput, memory and time to PSNR 40 dB, printed."""
     torch.set_num_threads(threads)
     print(f"helioflow raytrace benchmark: 64x64 target, {threads} threads, torch {torch.__version__}")
     print(f"{'rays':>12} {'Mrays/s':>9} {'peak RSS MB':>12} {'after imports MB':>17}")
@@ -323,13 +325,15 @@ def write_plant_dir(folder, n: int, template="examples/plant_world", images: int
     source, folder = Path(template), Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     shutil.copy(source / "tower-measurements.json", folder / "tower-measurements.json")
-    lat0, lon0, _ = json.loads((source / "tower-measurements.json").read_text())["power_plant_properties"]["coordinates"]
+    tower = json.loads((source / "tower-measurements.json").read_text())
+    lat0, lon0, _ = tower["power_plant_properties"]["coordinates"]
     props = json.loads((source / "P000" / "heliostat-properties.json").read_text())
     measured = sorted(source.glob("P000/*-calibration-properties.json"))[:images]
     columns = math.ceil(math.sqrt(n))
     for i in range(n):
         east, north = 8.0 * (i % columns - columns / 2), 40.0 + 10.0 * (i // columns)
-        props["heliostat_position"] = [lat0 + north / 111_200.0, lon0 + east / (111_200.0 * math.cos(math.radians(lat0))),
+        props["heliostat_position"] = [lat0 + north / 111_200.0,
+                                       lon0 + east / (111_200.0 * math.cos(math.radians(lat0))),
                                        props["heliostat_position"][2]]
         target = folder / f"H{i:04d}"
         target.mkdir(exist_ok=True)
@@ -367,6 +371,7 @@ def dag(heliostats: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """`python -m helioflow.bench NAME`: run one benchmark."""
     ap = argparse.ArgumentParser(prog="python -m helioflow.bench", description=__doc__.splitlines()[0])
     ap.add_argument("name", choices=["raytrace", "field", "fit", "dag"])
     ap.add_argument("--threads", type=int, default=2)

@@ -41,6 +41,7 @@ def _spec(args, params) -> dict:
 
 
 def cmd_recovery(args) -> None:
+    """`helioflow recovery`: what a fitted drt model recovered of a synthetic heliostat's true errors."""
     from helioflow.scoring.recovery import recovery, write_recovery
 
     if args.output is None:
@@ -50,6 +51,7 @@ def cmd_recovery(args) -> None:
 
 
 def cmd_fitted_heliostat(args) -> None:
+    """`helioflow fitted-heliostat`: the heliostat a drt fit found, as JSON (and a figure)."""
     from helioflow.scoring.fitted_heliostat import fitted_heliostat, write_fitted_heliostat
 
     step = {} if args.grid_step_m is None else {"grid_step_m": args.grid_step_m}
@@ -60,12 +62,14 @@ def cmd_fitted_heliostat(args) -> None:
 
 
 def cmd_batch(args) -> None:
+    """`helioflow batch`: several steps in one process, each with its own log."""
     from helioflow.batch import run_batch
 
     run_batch(read_spec(args.commands), parser().parse_args)
 
 
 def cmd_plan_measurements(args) -> None:
+    """`helioflow plan-measurements`: the sun positions that shrink a fitted model's uncertainty most."""
     from helioflow.models.planning import plan_measurements
 
     spec = _spec(args, workflow.plan_params)  # --name: the dataset's name in the config
@@ -75,6 +79,7 @@ def cmd_plan_measurements(args) -> None:
 
 
 def cmd_surfaces(args) -> None:
+    """`helioflow surfaces`: write a heliostat's true geometry (ideal + seeded errors)."""
     from helioflow.data.surfaces import HeliostatSpec, true_heliostat, write_heliostat
 
     spec = HeliostatSpec.from_config(*_split_name(_spec(args, workflow.surfaces_params)))
@@ -88,6 +93,7 @@ def _split_name(params: dict) -> tuple[str, dict]:
 
 
 def cmd_trace(args) -> None:
+    """`helioflow trace`: raytrace a calibration dataset."""
     from helioflow.data.synthetic import trace_dataset
 
     ds = trace_dataset(_spec(args, workflow.trace_params), args.heliostat, args.output)
@@ -95,6 +101,7 @@ def cmd_trace(args) -> None:
 
 
 def cmd_import_paint(args) -> None:
+    """`helioflow import-paint`: a PAINT heliostat's dataset and/or ideal geometry."""
     from helioflow.data.paint import CENTERED_DEFAULT, import_paint
 
     if args.paint_dir is not None or args.heliostat is not None:
@@ -121,6 +128,7 @@ def cmd_import_paint(args) -> None:
 
 
 def cmd_import_images(args) -> None:
+    """`helioflow import-images`: one's own calibration images (a folder and a CSV) as a dataset."""
     from helioflow.data.images import import_images
 
     if args.output is None and args.heliostat_output is None:
@@ -137,6 +145,7 @@ def cmd_import_images(args) -> None:
 
 
 def cmd_paint_centroids(args) -> None:
+    """`helioflow paint-centroids`: measured vs ideal spot centroid (mrad) per PAINT image."""
     from helioflow.scoring.paint_centroids import centroid_check, format_table, write_centroid_check
 
     rows = centroid_check(args.dataset, args.heliostat)
@@ -147,6 +156,7 @@ def cmd_paint_centroids(args) -> None:
 
 
 def cmd_plot_dataset(args) -> None:
+    """`helioflow plot-dataset`: a figure of sample images of a dataset."""
     from helioflow.data.figures import plot_dataset_samples
 
     plot_dataset_samples(args.dataset, args.output, n=args.samples)
@@ -154,6 +164,7 @@ def cmd_plot_dataset(args) -> None:
 
 
 def cmd_train(args) -> None:
+    """`helioflow train`: train a network on a dataset's train split."""
     from helioflow.models.registry import train_network
 
     dataset = os.path.splitext(os.path.basename(args.dataset))[0]
@@ -170,6 +181,7 @@ DIAGNOSIS_FIGURES = ("signatures", "ranking", "residuals", "location", "ledger-f
 
 
 def cmd_diagnose(args) -> None:
+    """`helioflow diagnose`: which physical effect the model lacks, from a dataset's measurements."""
     from helioflow.diagnosis.diagnose import diagnose_dataset
 
     spec = _spec(args, workflow.diagnose_params)  # --name: the dataset's name in the config
@@ -186,6 +198,7 @@ def cmd_diagnose(args) -> None:
 
 
 def cmd_evaluate(args) -> None:
+    """`helioflow evaluate`: score a model on every split of a dataset."""
     from helioflow.scoring.evaluation import evaluate_model
 
     spec = read_spec(args.spec) if args.spec else {}
@@ -196,6 +209,7 @@ def cmd_evaluate(args) -> None:
 
 
 def cmd_compose_field(args) -> None:
+    """`helioflow compose-field`: truth, ideal and hybrid flux maps of the field on the receiver."""
     from helioflow.config import load_config
     from helioflow.field.compose import compose_field
 
@@ -223,6 +237,7 @@ def _metrics(paths: list[str]) -> list[str]:
 
 
 def cmd_table(args) -> None:
+    """`helioflow table`: Table 1 from metrics files."""
     from helioflow.scoring.table import build_table
 
     build_table(_metrics(args.metrics), args.csv, args.markdown)
@@ -230,6 +245,7 @@ def cmd_table(args) -> None:
 
 
 def cmd_data_efficiency(args) -> None:
+    """`helioflow data-efficiency`: PSNR against the number of training images."""
     from helioflow.scoring.efficiency import plot_data_efficiency
 
     plot_data_efficiency(_metrics(args.metrics), args.figure, args.csv)
@@ -237,6 +253,7 @@ def cmd_data_efficiency(args) -> None:
 
 
 def cmd_leave_one_out(args) -> None:
+    """`helioflow leave-one-out`: held-out scores and pictures of a leave-one-out run on real images."""
     from helioflow.scoring.leave_one_out import leave_one_out
 
     inputs = json.loads(args.inputs)
@@ -247,6 +264,7 @@ def cmd_leave_one_out(args) -> None:
 
 
 def cmd_plant_table(args) -> None:
+    """`helioflow plant-table`: one row per heliostat of the plant entries."""
     from helioflow.scoring.plant import write_plant_table
 
     if args.spec is not None:
@@ -266,6 +284,7 @@ def cmd_plant_table(args) -> None:
 
 
 def cmd_plant_shared(args) -> None:
+    """`helioflow plant-shared`: what a plant's heliostats share, fitted once across them."""
     from helioflow.diagnosis.shared import plant_shared
 
     out = plant_shared(read_spec(args.spec), args.output)
@@ -274,6 +293,7 @@ def cmd_plant_shared(args) -> None:
 
 
 def cmd_plant_flux(args) -> None:
+    """`helioflow plant-flux`: a plant's flux maps on its receiver."""
     from helioflow.field.plant import compose_plant
 
     spec = read_spec(args.spec)
@@ -286,6 +306,7 @@ def cmd_plant_flux(args) -> None:
 
 
 def cmd_report(args) -> None:
+    """`helioflow report`: the self-contained HTML report of an experiment."""
     from helioflow.report.page import write_report
 
     write_report(args.output, read_spec(args.inputs), args.benchmarks, args.experiment)
@@ -302,6 +323,7 @@ def _with_spec(p: argparse.ArgumentParser) -> None:
 
 
 def parser() -> argparse.ArgumentParser:
+    """The `helioflow` command line: one subcommand per step."""
     ap = argparse.ArgumentParser(prog="helioflow", description=__doc__.splitlines()[0])
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     ap.add_argument("-v", "--verbose", action="store_true")
@@ -483,6 +505,7 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one step; 0 on success, 2 (one line on stderr) on an error in the user's input."""
     args = parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")

@@ -32,8 +32,9 @@ def check_results_dir(config: dict) -> None:
     path = Path(results_dir(config))
     for folder in (path.parent, path):
         if folder.exists() and not folder.is_dir():
-            raise ConfigError(f"{folder} is a file, not a folder: the outputs of experiment {config['experiment']!r} go "
-                              f"under {path}/; move the file away or choose another experiment name")
+            raise ConfigError(f"{folder} is a file, not a folder: the outputs of experiment "
+                              f"{config['experiment']!r} go under {path}/; move the file away or choose another "
+                              "experiment name")
 
 
 def _dataset(config: dict, dataset: str) -> dict:
@@ -652,7 +653,8 @@ def check_field_geometry(config: dict) -> None:
     if pairs:
         a, b = min(pairs)
         raise ConfigError(f"field.layout: heliostats {names[a]} {positions[a]} and {names[b]} {positions[b]} are "
-                          f"{np.linalg.norm(xy[a] - xy[b]):.2f} m apart, less than the mirror diagonal {diagonal:.2f} m: "
+                          f"{np.linalg.norm(xy[a] - xy[b]):.2f} m apart, less than the mirror diagonal "
+                          f"{diagonal:.2f} m: "
                           "their mirrors would collide")
 
 
@@ -785,7 +787,8 @@ def leave_one_out_ids(dataset: dict) -> list[str]:
     from helioflow.data.paint import CENTERED_DEFAULT, measurement_targets
 
     try:
-        targets = measurement_targets(dataset["paint_dir"], dataset["heliostat"], dataset.get("centered", CENTERED_DEFAULT))
+        targets = measurement_targets(dataset["paint_dir"], dataset["heliostat"],
+                                      dataset.get("centered", CENTERED_DEFAULT))
     except DataError as exc:
         raise ConfigError(f"holdout: leave_one_out needs the measurement ids: {exc}") from None
     keep = dataset.get("targets")
@@ -868,7 +871,8 @@ def expand_plants(config: dict) -> dict:
         entry = {k: v for k, v in ds.items() if k != "heliostats"}
         if ds["source"] == "images":
             return {f"{name}_{h}": {**copy.deepcopy(entry), "csv_heliostat": h, PLANT_KEY: name,
-                                    "heliostat_properties": ds["heliostat_properties"].replace(HELIOSTAT_PLACEHOLDER, h)}
+                                    "heliostat_properties":
+                                        ds["heliostat_properties"].replace(HELIOSTAT_PLACEHOLDER, h)}
                     for h in csv_heliostats(ds["csv"], ds["heliostats"])}
         return {f"{name}_{h}": {**copy.deepcopy(entry), "heliostat": h, PLANT_KEY: name}
                 for h in plant_heliostats(ds["paint_dir"], ds["heliostats"])}
@@ -911,7 +915,8 @@ def plant_table_spec(config: dict) -> dict:
     r = results_dir(config)
     return {"pointing_limit_mrad": settings["pointing_limit_mrad"],
             "heliostats": [{"plant": plant, "heliostat": plant_heliostat(config, d), "dataset": d,
-                            "dataset_path": f"{r}/datasets/{d}.h5", "model_path": f"{r}/models/{d}/{settings['model']}.pt",
+                            "dataset_path": f"{r}/datasets/{d}.h5",
+                            "model_path": f"{r}/models/{d}/{settings['model']}.pt",
                             "diagnosis_path": f"{r}/diagnosis/{d}.json",
                             "shared_path": (shared_of(config, d) or {}).get("path", "")}
                            for plant, members in plant_groups(config).items() for d in members]}

@@ -79,7 +79,8 @@ def write_arrays(
     write_atomic(path, lambda tmp: _write_h5(tmp, arrays, attrs, schema, units))
 
 
-def _write_h5(path: Path, arrays: dict[str, np.ndarray], attrs: dict, schema: str, units: dict[str, str] | None) -> None:
+def _write_h5(path: Path, arrays: dict[str, np.ndarray], attrs: dict, schema: str,
+              units: dict[str, str] | None) -> None:
     with h5py.File(path, "w") as f:
         for key, value in arrays.items():
             arr = np.asarray(value)

@@ -368,6 +368,7 @@ class WGS84Origin:
         self.origin = tuple(float(x) for x in origin)
 
     def enu(self, wgs84) -> np.ndarray:
+        """(..., 3) WGS84 (lat deg, lon deg, alt m) -> (..., 3) ENU m around the origin."""
         p = np.asarray(wgs84, dtype=float)
         return wgs84_to_enu(p[..., 0], p[..., 1], p[..., 2], *self.origin)
 
@@ -453,7 +454,8 @@ def build_dataset(spec: dict, geometry):
     position = geometry.position.numpy()
     if float(np.dot(position - plane.center, plane.normal)) <= 0:
         raise DataError(f"datasets.{spec['dataset']}: the heliostat at {np.round(position, 3).tolist()} m is not in "
-                        f"front of the target (center_m {spec['target']['center_m']}, normal {spec['target']['normal']}, "
+                        f"front of the target (center_m {spec['target']['center_m']}, "
+                        f"normal {spec['target']['normal']}, "
                         "which points towards the heliostat): it cannot see it")
     missing = [r for r in rows if not r.path.is_file()]
     if missing:

@@ -13,7 +13,8 @@ What it does not count: noise correlated over several pixels (a blur after the c
 resampled or rectified image) is underestimated by a pixel-scale operator, and under 8-bit
 quantisation it is not seen at all: noise blurred over one pixel of a 64 x 64 image keeps 1/100 of
 its variance in the operator's response, less than the quantisation's. `residual_noise` measures
-that noise where it is: in the residual of a model, at the spatial frequencies its spot lacks. What it counts too much: the operator sees a spot's own
+that noise where it is: in the residual of a model, at the spatial frequencies its spot lacks.
+What it counts too much: the operator sees a spot's own
 fourth derivative, about peak / (6 sigma^4) for a Gaussian spot of sigma pixels (a floor of ~1e-4
 misplaced flux for noise-free spots of 3 px); read in a residual (measured - predicted, with the
 prediction's levels: `measure_noise(residual, signal=prediction)`) the spot is gone.
@@ -101,6 +102,7 @@ class NoiseModel:
         return std * (math.sqrt(self.white_share) * white + math.sqrt(1.0 - self.white_share) * correlated)
 
     def as_json(self) -> dict:
+        """The noise as JSON: levels, std per level, variance slope above them, correlation, white share."""
         return {"levels": [float(f"{x:.6g}") for x in self.levels],
                 "std": [float(f"{x:.6g}") for x in np.sqrt(self.variance)],
                 "variance_slope_above": float(f"{self.slope:.6g}"),
@@ -143,8 +145,8 @@ def residual_noise(measured: Tensor, predicted: Tensor) -> NoiseModel | None:
     operator = measure_noise(residual, pred)  # the white share's shape over the levels: blind to smooth mismatch
     white_scale = white / max(float((operator.std(pred) ** 2).mean()), 1e-300)
     per_level = spread / max(float(pred.clamp_min(0).mean()), 1e-300)  # photon noise: grows with the signal
-    return NoiseModel(operator.levels, operator.variance * white_scale + per_level * np.clip(operator.levels, 0.0, None),
-                      operator.slope * white_scale + per_level, b, white / (white + spread))
+    variance = operator.variance * white_scale + per_level * np.clip(operator.levels, 0.0, None)
+    return NoiseModel(operator.levels, variance, operator.slope * white_scale + per_level, b, white / (white + spread))
 
 
 def _half_plane(h: int, w: int) -> np.ndarray:

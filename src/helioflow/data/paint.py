@@ -203,6 +203,7 @@ class Tower:
         return wgs84_to_enu(p[..., 0], p[..., 1], p[..., 2], *self.origin)
 
     def planar_targets(self) -> list[str]:
+        """The names of the tower file's planar targets, sorted."""
         return sorted(k for k, v in self.data.items() if isinstance(v, dict) and v.get("type") == "planar")
 
     def target(self, name: str, used_in: Path) -> PlaneTarget:
@@ -516,7 +517,8 @@ def _sort_key(mid: str):
     return (not mid.isdigit(), int(mid) if mid.isdigit() else 0, mid)
 
 
-def measurement_targets(paint_dir: str | os.PathLike, heliostat: str, centered: str = CENTERED_DEFAULT) -> dict[str, str]:
+def measurement_targets(paint_dir: str | os.PathLike, heliostat: str,
+                        centered: str = CENTERED_DEFAULT) -> dict[str, str]:
     """{measurement id: target name} of a heliostat folder (numeric ids first, in order), read from
     each <id>-calibration-properties.json alone: what splitting a dataset into folds needs
     (`helioflow.workflow.expand_leave_one_out`); the import checks everything else. `centered`:

@@ -72,8 +72,9 @@ def assign_splits(azimuth_deg: np.ndarray, elevation_deg: np.ndarray, spec: dict
     ranges (a coordinate that does not vary, like the azimuth of an elevation scan, constrains
     nothing); the rest are "train". ``interpolation.elevation_bands_deg`` ([[low, high], ...])
     additionally holds out every remaining position whose elevation lies in a band: contiguous
-    gaps inside the training range, which test interpolation across more than one sample step. Raises ConfigError for an invalid spec, too few interior
-    positions for the requested fraction, or no train position left.
+    gaps inside the training range, which test interpolation across more than one sample step.
+    Raises ConfigError for an invalid spec, too few interior positions for the requested fraction,
+    or no train position left.
     """
     azimuth = np.asarray(azimuth_deg, dtype=np.float64)
     elevation = np.asarray(elevation_deg, dtype=np.float64)

@@ -50,6 +50,7 @@ class HeliostatSpec:
 
     @staticmethod
     def from_config(name: str, d: dict) -> HeliostatSpec:
+        """The spec of heliostat `name` from its config entry `d` (defaults for the optional keys)."""
         f = d["facets"]
         return HeliostatSpec(
             name, tuple(d["position_m"]), d["mount"], f["rows"], f["cols"], f["width_m"], f["height_m"],
@@ -82,7 +83,9 @@ def true_heliostat(spec: HeliostatSpec) -> Heliostat:
     canting = rng.normal(0.0, spec.canting_error_mrad * 1e-3, (n_facets, 2))
     if n_facets > 1:
         canting = canting - canting.mean(axis=0)
-    t = lambda a: torch.as_tensor(a, dtype=torch.float64)
+    def t(a):
+        return torch.as_tensor(a, dtype=torch.float64)
+
     return replace(ideal, control_heights=without_planes(t(heights)), canting_error=t(canting),
                    tracking_error=t(tracking))
 
@@ -121,7 +124,9 @@ def read_heliostat(path: str | os.PathLike) -> Heliostat:
     for key in ("mount", "facet_focal_length_m"):
         if key not in attrs:
             raise DataError(f"{path}: attribute {key!r} is missing; expected a heliostat geometry file from `surfaces`")
-    t = lambda k, scale=1.0: torch.as_tensor(arrays[k] * scale, dtype=torch.float64)
+    def t(k, scale=1.0):
+        return torch.as_tensor(arrays[k] * scale, dtype=torch.float64)
+
     focal = attrs["facet_focal_length_m"]
     return Heliostat(
         position=t("position_m"),

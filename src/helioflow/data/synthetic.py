@@ -90,7 +90,8 @@ def trace_dataset(spec: dict, heliostat_path: str | os.PathLike, output_path: st
     log.info("fill fraction (pixels above %.0f%% of the peak): min %.3f, median %.3f", 100 * FILL_THRESHOLD,
              fill.min(), np.median(fill))
     if fill.min() < MIN_FILL:
-        log.warning("%d images have less than %.0f%% of their pixels in the spot", (fill < MIN_FILL).sum(), 100 * MIN_FILL)
+        log.warning("%d images have less than %.0f%% of their pixels in the spot", (fill < MIN_FILL).sum(),
+                    100 * MIN_FILL)
     dataset = CalibrationDataset(
         images=images.cpu().numpy().astype(np.float32),
         azimuth_deg=az_deg,
@@ -162,7 +163,8 @@ def auto_window(physics: Physics, heliostat, centre, normal, az, el, settings: d
     images = trace_images(physics, heliostat, target, az, el, preview, seed=0)
     u, v = target.pixel_centres(images.dtype, images.device)
     inside = images > FILL_THRESHOLD * images.amax((-2, -1), keepdim=True)
-    half = torch.maximum((inside * u.abs()[None, None, :]).amax((-2, -1)), (inside * v.abs()[None, :, None]).amax((-2, -1)))
+    half = torch.maximum((inside * u.abs()[None, None, :]).amax((-2, -1)),
+                         (inside * v.abs()[None, :, None]).amax((-2, -1)))
     side = 2 * (float(half.max()) + target.pixel_size[0]) * 1.1
     if not math.isfinite(side) or not images.isfinite().all() or float(images.amax()) <= 0:
         raise DataError(f"window_m: auto could not size the target window: no flux reaches the target plane within "

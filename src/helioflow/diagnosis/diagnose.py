@@ -106,7 +106,8 @@ MIRROR_IMAGES = 48  # images (evenly picked) the mirror localisation traces, reg
 NUMERICAL_FLOOR = 0.001  # misplaced flux below which a noise floor is not resolved by the diagnosis' fits
 MODEL_RESOLUTION = 0.002  # misplaced flux between the model's spot and an independent Monte Carlo of the same physics
 #                           on nearly noise-free 8-bit images (0.0020-0.0027, scripts/experiments/model_resolution.py):
-#                           the model's own mismatch, which no candidate removes; `compared_floor` adds it to the noise's
+#                           the model's own mismatch, which no candidate removes; `compared_floor` adds it to the
+#                           noise's
 PARTLY = 0.1  # a best candidate that cuts an unexplained residual by this much is named as explaining part of it
 SWAP_NOISE = 0.5  # swapping a chosen change for another that ends within this fraction of the noise floor: alike
 SIGNIFICANCE = 1e-3  # a candidate's fitted parameters depart from their do-nothing values at this level (Wald test)
@@ -245,6 +246,7 @@ class Diagnosis:
         return FitResult(effects, tensors, list(base.history), fitted_parameters(self.effects_with(key)))
 
     def error(self, labels) -> float:
+        """The held-out misplaced flux of the model with the candidates `labels` (see `fitted`)."""
         return self.fitted(labels)[0]
 
     def predicted(self, labels) -> Tensor:
@@ -253,7 +255,8 @@ class Diagnosis:
         key = frozenset(labels)
         if key not in self.predictions:
             result = self.fitted(key)[1]
-            sun = [torch.cat((getattr(self.train, a), getattr(self.heldout, a))) for a in ("azimuth_deg", "elevation_deg")]
+            sun = [torch.cat((getattr(self.train, a), getattr(self.heldout, a)))
+                   for a in ("azimuth_deg", "elevation_deg")]
             with torch.no_grad():
                 self.predictions[key] = self.scene.simulate(result.effects, result.tensors, *sun)
         return self.predictions[key]
@@ -321,7 +324,9 @@ class Diagnosis:
         30-heliostat plant a slope error and a canting were named surface + tracking at held-out
         errors within 1 % of the true pair's; the surface of a bump cuts 1.3-2.7 noise floors below
         the best rigid pair."""
-        rigid = lambda subset: self.free_parameters(subset, with_model=True) <= COVARIANCE_PARAMETERS
+        def rigid(subset) -> bool:
+            return self.free_parameters(subset, with_model=True) <= COVARIANCE_PARAMETERS
+
         alike = [s for s in subsets if rigid(s)]
         if rigid(best) or not alike:
             return best
@@ -533,8 +538,9 @@ class Diagnosis:
                 "added_to": list(base), "heldout_error_before": before, "heldout_error_after": after,
                 "relative_reduction": 1.0 - after / max(before, 1e-30),
                 "identifiable": REGISTRY[c.effect].identifiable, "meaningful": meaningful,
-                "significance": test, "named_for": ("" if not meaningful else "cut" if test is None
-                                                    or 1.0 - after / max(before, 1e-30) >= THRESHOLD else "significance"),
+                "significance": test,
+                "named_for": ("" if not meaningful else "cut" if test is None
+                              or 1.0 - after / max(before, 1e-30) >= THRESHOLD else "significance"),
                 "config": config_line(c, fit)}
 
 
@@ -580,7 +586,8 @@ def _predicted_centroids(spots: dict[str, np.ndarray]) -> dict[str, list]:
     """The final model's predicted spot centroid per image (mrad from the target centre, right / up,
     as seen from the heliostat) and its sigma from the fit's covariance (physics_fit.spot_spread)."""
     (right, up), (s_right, s_up) = spots["centroid_mrad"].T, spots["centroid_sigma_mrad"].T
-    return {"model_centroid_right_mrad": np.round(right, 4).tolist(), "model_centroid_up_mrad": np.round(up, 4).tolist(),
+    return {"model_centroid_right_mrad": np.round(right, 4).tolist(),
+            "model_centroid_up_mrad": np.round(up, 4).tolist(),
             "model_centroid_sigma_right_mrad": np.round(s_right, 5).tolist(),
             "model_centroid_sigma_up_mrad": np.round(s_up, 5).tolist()}
 
@@ -618,8 +625,8 @@ def verdict(ranking: list[dict], summary: dict, remaining: dict, location: dict)
             return (f"Explained down to the noise: the model's held-out error (misplaced flux {error:.3f}) is "
                     f"{ratio:.1f} times {_floor_words(remaining)}, and {tried}.")
         partly = ranking and ranking[0]["relative_reduction"] >= PARTLY
-        hint = (f"{_words(ranking[0]).capitalize()} explains part of it; an effect the registry lacks may explain the rest"
-                if partly else "An effect the registry lacks is likely")
+        hint = (f"{_words(ranking[0]).capitalize()} explains part of it; an effect the registry lacks may explain "
+                "the rest" if partly else "An effect the registry lacks is likely")
         return (f"A residual {ratio:.1f} times the noise remains that no candidate explains: held-out misplaced flux "
                 f"{error:.3f}, {ratio:.1f} times {_floor_words(remaining)}, and {tried}. {_lives(location)} {hint}: "
                 "see docs/adding_an_effect.md.")
@@ -793,13 +800,16 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     read_ledger(ledger_path)  # a broken ledger stops the rule before the fits, not after them
     train_index, heldout_index, heldout = scoring_split(ds)
     scale = float(ds.images[train_index].max())
-    pick = lambda index, n: index[np.linspace(0, len(index) - 1, min(n, len(index))).round().astype(int)]
+    def pick(index, n):
+        return index[np.linspace(0, len(index) - 1, min(n, len(index))).round().astype(int)]
+
     device = resolve_device(device)
     heliostat = read_heliostat(heliostat_path).ideal().to(device)
     shape = tuple(ds.images.shape[1:])
     fit_scene = dataset_scene(heliostat, ds.attrs, shape, settings["cells_per_side"], settings["fit_rays"], True)
     fit = FitSettings(steps=settings["fit_steps"], rounds=settings["rounds"])
-    diagnosis = Diagnosis(fit_scene, effects, _measurements(ds, pick(train_index, settings["fit_images"]), scale, device),
+    diagnosis = Diagnosis(fit_scene, effects,
+                          _measurements(ds, pick(train_index, settings["fit_images"]), scale, device),
                           _measurements(ds, pick(heldout_index, settings["heldout_images"]), scale, device), fit,
                           settings["max_effects"], plant=plant, measured=is_measured(ds.attrs))
     before, model, ranking, skipped, chosen = diagnosis.rank()
@@ -846,9 +856,9 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
         "noise_floor_standard_error": remaining["noise_floor_standard_error"],
         "noise": {"method": NOISE_METHOD, "model": diagnosis.noise(chosen).as_json()},
         "remaining": {k: remaining[k] for k in ("changes", "error", "model_resolution", "over_noise", "explained")},
-        "remaining_note": (f"The images hold almost no noise: what remains is compared with the diagnosis' numerical floor "
-                           f"({NUMERICAL_FLOOR})" if remaining["noise_floor"] < NUMERICAL_FLOOR and not diagnosis.measured
-                           else ""),
+        "remaining_note": ("The images hold almost no noise: what remains is compared with the diagnosis' "
+                           f"numerical floor ({NUMERICAL_FLOOR})"
+                           if remaining["noise_floor"] < NUMERICAL_FLOOR and not diagnosis.measured else ""),
         "model_fitted": _summarised(model.fitted_values()),
         "ranking": ranking,
         "not_tested": skipped,

@@ -148,13 +148,15 @@ def plot_location(result: dict, path) -> None:
     colours = plt.Normalize(1.0 - span, 1.0 + span)
     n = loc["mirror"]["affected_images"]
     over = f"{result['threshold']['explained_over_noise']} x noise"
-    for ax, key, title in ((axes[3], "affected", f"the {n} images over {over}" if n else f"all images (none over {over})"),
+    for ax, key, title in ((axes[3], "affected",
+                            f"the {n} images over {over}" if n else f"all images (none over {over})"),
                            (axes[4], "others", "the other images" if n else "(no other images)")):
         for r, w in zip(regions, mirror[key]):
             ax.add_patch(Rectangle((r["right_m"] - r["width_m"] / 2, r["up_m"] - r["height_m"] / 2), r["width_m"],
                                    r["height_m"], facecolor=plt.cm.RdBu(colours(w)), edgecolor="white", lw=0.5))
             ax.text(r["right_m"], r["up_m"], f"{w:.2f}", ha="center", va="center", fontsize=7)
-        ax.set_xlim(min(r["right_m"] - r["width_m"] for r in regions), max(r["right_m"] + r["width_m"] for r in regions))
+        ax.set_xlim(min(r["right_m"] - r["width_m"] for r in regions),
+                    max(r["right_m"] + r["width_m"] for r in regions))
         ax.set_ylim(min(r["up_m"] - r["height_m"] for r in regions), max(r["up_m"] + r["height_m"] for r in regions))
         ax.set_aspect("equal")
         ax.set_xlabel("mirror right (m), seen from the target")

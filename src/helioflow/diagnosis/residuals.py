@@ -48,8 +48,9 @@ def by_sun_position(azimuth_deg: np.ndarray, elevation_deg: np.ndarray, over_noi
         out[name] = parts
         worst = max(parts, key=lambda p: p["over_noise"])
         least = min(p["over_noise"] for p in parts)
-        words.append(f"{worst['over_noise']:.1f} times the noise at sun {name.split('_')[0]} {worst['range'][0]:.0f} to "
-                     f"{worst['range'][1]:.0f} deg ({least:.1f} times in the least affected third)")
+        words.append(f"{worst['over_noise']:.1f} times the noise at sun {name.split('_')[0]} "
+                     f"{worst['range'][0]:.0f} to {worst['range'][1]:.0f} deg "
+                     f"({least:.1f} times in the least affected third)")
     out["where"] = " and ".join(words)
     return out
 
@@ -124,7 +125,8 @@ def on_mirror(scene: Scene, effects: dict, tensors: dict, azimuth_deg: Tensor, e
         if len(chosen):
             index = torch.as_tensor(chosen)
             b = meas[index].reshape(-1).numpy()
-            pattern = _weights((parts[index] / total[index, None]).movedim(1, -1).reshape(-1, regions * regions).numpy(), b)
+            shares = (parts[index] / total[index, None]).movedim(1, -1).reshape(-1, regions * regions)
+            pattern = _weights(shares.numpy(), b)
             placed = torch.as_tensor(pattern, dtype=h.facet_size.dtype, device=place.device)[place]  # (cells, cells)
             by_facet = []
             for f in range(h.n_facets):  # each facet, its parts weighted as found
@@ -169,7 +171,8 @@ def _mirror_words(places: list[dict], out: dict) -> str:
             w = float(np.mean([pattern[k] for k, p in enumerate(places) if p[group] == word]))
             if abs(w - 1.0) > OFF:
                 part = "third" if group == "row" else "column"
-                named.append((abs(w - 1.0), f"the {word} {part} of every facet sends {w:.2f} times the light the model says"))
+                named.append((abs(w - 1.0),
+                              f"the {word} {part} of every facet sends {w:.2f} times the light the model says"))
     named += [(abs(w - 1.0), f"facet {f + 1} sends {w:.2f} times the light the model says")
               for f, w in enumerate(facets) if abs(w - 1.0) > OFF]
     n = out["affected_images"]

@@ -72,9 +72,11 @@ class ConditionalGAN(SpotModel):
         self.netD = Discriminator(self.image_shape, config.features, config.max_mult, cond_channels=CONDITION_DIM)
 
     def configure_optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        """Adam for the generator and for the discriminator (`adam_pair`)."""
         return adam_pair(self.netG, self.netD, self.config)
 
     def training_step(self, batch: dict[str, Tensor], optimizers: dict, generator: torch.Generator) -> dict[str, float]:
+        """One discriminator and one generator step on the batch, conditioned on its sun positions."""
         real = batch["images"]
         condition = sun_features(batch["azimuth_deg"], batch["elevation_deg"])
         z = torch.randn(len(real), self.config.latent, generator=generator).to(self.device)

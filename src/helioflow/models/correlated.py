@@ -59,5 +59,6 @@ def correlated_gram(weighted: Tensor, shape: tuple[int, int, int], spectrum: Ten
     for start in range(0, weighted.shape[1], CHUNK):
         block = weighted[:, start:start + CHUNK].double().reshape(n, h, w, -1)
         spread = torch.fft.irfft2(torch.fft.rfft2(block, dim=(1, 2)) * gain, s=(h, w), dim=(1, 2))
-        out[:, start:start + block.shape[-1]] = (weighted.T @ spread.reshape(n * h * w, -1).to(weighted.dtype)).double().numpy()
+        columns = weighted.T @ spread.reshape(n * h * w, -1).to(weighted.dtype)
+        out[:, start:start + block.shape[-1]] = columns.double().numpy()
     return 0.5 * (out + out.T)

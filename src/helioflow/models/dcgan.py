@@ -134,6 +134,7 @@ class Discriminator(nn.Module):
         self.apply(weights_init)
 
     def forward(self, images: Tensor, condition: Tensor | None = None) -> Tensor:
+        """(N, 1, H, W) images [+ (N, C) condition] -> (N,) logits."""
         if self.cond_channels:
             n, _, h, w = images.shape
             images = torch.cat((images, condition[:, :, None, None].expand(n, self.cond_channels, h, w)), dim=1)
@@ -171,19 +172,20 @@ class Generator(nn.Module):
         nn.init.constant_(out.bias, OUTPUT_BIAS)  # start near the black background, not at 0.5
 
     def forward(self, z: Tensor, condition: Tensor | None = None) -> Tensor:
+        """(N, latent) noise [+ (N, C) condition] -> (N, H, W) images."""
         if self.embed is not None:
             z = torch.cat((z, self.embed(condition)), dim=1)
         return self.main(z[:, :, None, None])[:, 0]
 
 
-def adam_pair(netG: nn.Module, netD: nn.Module, config: GanConfig) -> dict[str, torch.optim.Optimizer]:
+def adam_pair(generator: nn.Module, discriminator: nn.Module, config: GanConfig) -> dict[str, torch.optim.Optimizer]:
     """{'generator': Adam, 'discriminator': Adam} with the config's lr and betas."""
     betas = (config.beta1, config.beta2)
-    return {"generator": torch.optim.Adam(netG.parameters(), lr=config.lr, betas=betas),
-            "discriminator": torch.optim.Adam(netD.parameters(), lr=config.lr, betas=betas)}
+    return {"generator": torch.optim.Adam(generator.parameters(), lr=config.lr, betas=betas),
+            "discriminator": torch.optim.Adam(discriminator.parameters(), lr=config.lr, betas=betas)}
 
 
-def adversarial_step(netG: Generator, netD: Discriminator, optimizers: dict, real: Tensor, z: Tensor,
+def adversarial_step(generator: Generator, discriminator: Discriminator, optimizers: dict, real: Tensor, z: Tensor,
                      condition: Tensor | None = None, l1_weight: float = 0.0,
                      real_label: float = 1.0) -> dict[str, float]:
     """One discriminator then one generator step with the non-saturating GAN loss.
@@ -202,12 +204,12 @@ def adversarial_step(netG: Generator, netD: Discriminator, optimizers: dict, rea
     """
     opt_g, opt_d = optimizers["generator"], optimizers["discriminator"]
     real = real[:, None]
-    fake = netG(z, condition)[:, None]
+    fake = generator(z, condition)[:, None]
 
     # (1) discriminator: real -> real_label, fake -> 0 (fake detached: no gradient into G)
     opt_d.zero_grad(set_to_none=True)
-    logit_real = netD(real, condition)
-    logit_fake = netD(fake.detach(), condition)
+    logit_real = discriminator(real, condition)
+    logit_fake = discriminator(fake.detach(), condition)
     loss_d = (F.binary_cross_entropy_with_logits(logit_real, torch.full_like(logit_real, real_label))
               + F.binary_cross_entropy_with_logits(logit_fake, torch.zeros_like(logit_fake)))
     loss_d.backward()
@@ -215,7 +217,7 @@ def adversarial_step(netG: Generator, netD: Discriminator, optimizers: dict, rea
 
     # (2) generator: fool the updated discriminator (non-saturating: fake -> 1)
     opt_g.zero_grad(set_to_none=True)
-    logit = netD(fake, condition)
+    logit = discriminator(fake, condition)
     loss_g = F.binary_cross_entropy_with_logits(logit, torch.ones_like(logit))
     losses = {"loss_d": loss_d.item(), "loss_g": loss_g.item()}
     total = loss_g
@@ -242,9 +244,11 @@ class DCGAN(SpotModel):
         self.netD = Discriminator(self.image_shape, config.features, config.max_mult)
 
     def configure_optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        """Adam for the generator and for the discriminator (`adam_pair`)."""
         return adam_pair(self.netG, self.netD, self.config)
 
     def training_step(self, batch: dict[str, Tensor], optimizers: dict, generator: torch.Generator) -> dict[str, float]:
+        """One discriminator and one generator step on the batch (`adversarial_step`)."""
         real = batch["images"]
         z = torch.randn(len(real), self.config.latent, generator=generator).to(self.device)
         return adversarial_step(self.netG, self.netD, optimizers, real, z, real_label=self.config.real_label)

@@ -58,6 +58,7 @@ class FreedomChoice:
     scores: dict[str, list[float]] = field(default_factory=dict)
 
     def as_json(self) -> dict:
+        """The choice, its reason and the held-out scores (each level's mean and standard error too)."""
         summary = {k: {"mean": round(float(np.mean(v)), 5), "standard_error": round(_standard_error(v), 5)}
                    for k, v in self.scores.items()}
         return {"chosen": self.chosen, "reason": self.reason,
@@ -66,6 +67,7 @@ class FreedomChoice:
 
     @classmethod
     def from_json(cls, data: dict) -> FreedomChoice:
+        """The choice `as_json` wrote."""
         return cls(data["chosen"], data["reason"], {k: list(v) for k, v in data["held_out_misplaced_flux"].items()})
 
 

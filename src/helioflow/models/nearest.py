@@ -18,6 +18,8 @@ class NearestConfig:
 
 
 class Nearest(SpotModel):
+    """The baseline that learns nothing: the training image of the closest sun direction."""
+
     name = "nearest"
     controllable = True
     uses_loop = False
@@ -39,19 +41,24 @@ class Nearest(SpotModel):
         return {"images": self.images, "directions": self.directions}
 
     def set_extra_state(self, state: dict) -> None:
+        """Take back the kept training data `get_extra_state` wrote."""
         self.images, self.directions = state["images"].to(self.device), state["directions"].to(self.device)
 
     def to_device(self, device: torch.device) -> Nearest:
+        """Move the model and its kept training data to `device`."""
         super().to_device(device)
         self.images, self.directions = self.images.to(self.device), self.directions.to(self.device)
         return self
 
     def configure_optimizers(self) -> dict:
+        """No optimizers: nothing is trained."""
         return {}
 
     def training_step(self, batch, optimizers, generator) -> dict[str, float]:
+        """Nothing to train: no losses."""
         return {}
 
     def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor, generator: torch.Generator) -> Tensor:
+        """(N,) sun positions (deg) -> (N, H, W) the training images of the closest sun directions."""
         cosines = sun_features(azimuth_deg.to(self.device), elevation_deg.to(self.device)) @ self.directions.T  # (N, M)
         return self.images[cosines.argmax(dim=1)]

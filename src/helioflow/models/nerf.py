@@ -274,6 +274,7 @@ class RadianceField(nn.Module):
         self.head = nn.Sequential(nn.Linear(config.width + n_view, half), nn.ReLU(), nn.Linear(half, 1))
 
     def forward(self, x: Tensor, view: Tensor) -> tuple[Tensor, Tensor]:
+        """(points (..., 3), sun directions (..., 3)) -> (density, intensity), both (...) >= 0."""
         point = encode(x, self.frequencies)
         v = encode(view, self.view_frequencies).expand(*point.shape[:-1], -1)
         h = self.trunk(torch.cat((point, v), -1) if self.condition else point)
@@ -354,6 +355,7 @@ class SpotNeRF(SpotModel):
     # SpotModel interface ---------------------------------------------------------------------
 
     def configure_optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        """One Adam over the radiance field's parameters."""
         return {"nerf": torch.optim.Adam(self.field.parameters(), lr=self.config.lr)}
 
     def learning_rate(self, step: int) -> float:
@@ -364,6 +366,7 @@ class SpotNeRF(SpotModel):
 
     def training_step(self, batch: dict[str, Tensor], optimizers: dict,
                       generator: torch.Generator) -> dict[str, float]:
+        """One step on `rays` random pixels of the batch: their rendered flux against the images (MSE)."""
         images = batch["images"]
         n_images, n_pixels = images.shape[0], images.shape[1] * images.shape[2]
         flat = torch.randint(0, n_images * n_pixels, (self.config.rays,), generator=generator).to(self.device)
@@ -382,6 +385,7 @@ class SpotNeRF(SpotModel):
 
     def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor,
                 generator: torch.Generator | None = None) -> Tensor:
+        """(N,) sun positions (deg) -> (N, H, W) rendered images, in chunks of `chunk` pixels."""
         rows, cols = self.image_shape
         n_pixels = rows * cols
         with torch.no_grad():

@@ -188,6 +188,7 @@ class RaytraceModel(SpotModel):
         self.curve = [{"step": i, "loss": v} for i, v in enumerate(self.fitted.history)]
 
     def fit_settings(self) -> FitSettings:
+        """The fit's settings (physics_fit.FitSettings) from the model's config."""
         c = self.config
         return FitSettings(steps=c.fit_steps, rounds=c.rounds, coarse_blur_px=c.coarse_blur_px,
                            loss="shape" if c.per_image_normalised else "absolute",
@@ -215,6 +216,7 @@ class RaytraceModel(SpotModel):
         return self
 
     def get_extra_state(self) -> dict:
+        """The fit travels in the state dict: the heliostat, the effects, their tensors and uncertainty."""
         h = self.heliostat
         return {"heliostat": None if h is None else {k: v for k, v in vars(h).items()},
                 "effects": self.fitted.effects, "tensors": self.fitted.tensors, "fitted": self.fitted.fitted,
@@ -222,6 +224,7 @@ class RaytraceModel(SpotModel):
                 "uncertainty": None if self.fitted.uncertainty is None else self.fitted.uncertainty.state()}
 
     def set_extra_state(self, state: dict) -> None:
+        """Take back the fit `get_extra_state` wrote."""
         self.heliostat = None if state["heliostat"] is None else Heliostat(**state["heliostat"])
         uncertainty = state.get("uncertainty")  # None in a model written before uncertainties
         self.fitted = FitResult(state["effects"], state["tensors"], fitted=state["fitted"],
@@ -230,9 +233,11 @@ class RaytraceModel(SpotModel):
         self.to_device(self.device)
 
     def configure_optimizers(self) -> dict:
+        """No optimizers: the fit happens in `prepare`."""
         return {}
 
     def training_step(self, batch, optimizers, generator) -> dict[str, float]:
+        """Nothing to train (the fit happens in `prepare`): no losses."""
         return {}
 
     def predict(self, azimuth_deg: Tensor, elevation_deg: Tensor, generator: torch.Generator) -> Tensor:
@@ -271,9 +276,11 @@ class DrtModel(RaytraceModel):
         return levels[self.freedom.chosen]
 
     def get_extra_state(self) -> dict:
+        """The fit and the freedom chosen."""
         return {**super().get_extra_state(), "freedom": None if self.freedom is None else self.freedom.as_json()}
 
     def set_extra_state(self, state: dict) -> None:
+        """Take back the fit and the freedom `get_extra_state` wrote."""
         super().set_extra_state(state)
         freedom = state.get("freedom")  # None in a model written before the freedom was chosen
         self.freedom = None if freedom is None else FreedomChoice.from_json(freedom)

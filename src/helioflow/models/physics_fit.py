@@ -46,9 +46,9 @@ for; pinned flat, the facet makes its neighbours give up the cover first.
 
 A fit with few free tensor entries (at most `gauss_newton_max_parameters`) ends with
 Gauss-Newton steps on them (`gauss_newton_steps`, SciPy's Levenberg-Marquardt) on the exact trace,
-then one more spread search there: they step along long flat valleys at once (a single-azimuth scan turns the mirror about
-nearly one axis, so the elevation offset and the northward pedestal tilt move the spot almost
-alike), and on the exact trace they remove the last of what the linearisation leaves out (the
+then one more spread search there: they step along long flat valleys at once (a single-azimuth
+scan turns the mirror about nearly one axis, so the elevation offset and the northward pedestal
+tilt move the spot almost alike), and on the exact trace they remove the last of what the linearisation leaves out (the
 cells' power and footprints follow the errors too, at a level only a near-perfect fit sees).
 
 The fit runs in named stages (`fit_stages`), each a function from a FitState (tensors, effect

@@ -181,7 +181,8 @@ def plan_measurements(model_path, dataset_path, settings: dict, output=None, dev
     fit = getattr(model, "fitted", None)
     if fit is None or fit.uncertainty is None or not fit.uncertainty.names:
         raise DataError(f"{model_path}: a {info['network']} model without fitted parameters and their uncertainty "
-                        f"(a physics model - raytrace or drt - trained by this version of helioflow) has nothing to plan for")
+                        "(a physics model - raytrace or drt - trained by this version of helioflow) has nothing to "
+                        "plan for")
     ds = read_dataset(dataset_path)
     times, azimuth, elevation, source = _candidates(settings, ds.attrs, dataset_path)
     scene = model.scene()
@@ -211,7 +212,8 @@ def plan_measurements(model_path, dataset_path, settings: dict, output=None, dev
         "candidates": {"count": len(azimuth), "source": source},
         "sigma_now": summary(names, fit.uncertainty.sigma),
         "next": [{"rank": k + 1, "time": None if times is None else times[p.index].isoformat(),
-                  "azimuth_deg": round(float(azimuth[p.index]), 3), "elevation_deg": round(float(elevation[p.index]), 3),
+                  "azimuth_deg": round(float(azimuth[p.index]), 3),
+                  "elevation_deg": round(float(elevation[p.index]), 3),
                   "gain": round(p.gain, 5), "sigma_after": summary(names, p.sigma_after)} for k, p in enumerate(picks)],
     }
     if output is not None:
@@ -250,4 +252,5 @@ def _candidates(settings: dict, attrs: dict, dataset_path) -> tuple[list | None,
     if not times:
         raise ConfigError(f"plan: the sun stands below {low} deg at every time of the {days} days from {start}")
     return times, azimuth, elevation, (f"the sun path at {site['latitude_deg']:.4f} N, {site['longitude_deg']:.4f} E "
-                                       f"from {start.isoformat()} for {days:g} days every {every:g} min, above {low:g} deg")
+                                       f"from {start.isoformat()} for {days:g} days every {every:g} min, "
+                                       f"above {low:g} deg")

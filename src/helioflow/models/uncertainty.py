@@ -139,6 +139,7 @@ class FitUncertainty:
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
     def index(self, name: str) -> int:
+        """The position of the parameter `name` in `names`."""
         return self.names.index(name)
 
     def correlation(self) -> np.ndarray:
@@ -177,7 +178,8 @@ class FitUncertainty:
                                     "undetermined": sum(self.names[k] in self.undetermined for k in at)}
         return {"method": "sandwich covariance at the fit's end point (models/uncertainty.py)",
                 "scalars": scalars, "tensors": tensors, "misfit": _num(self.misfit),
-                "structure": _num(self.structure), "structured_beyond": {"facet": STRUCTURED, "spreads": SPREADS_STRUCTURED},
+                "structure": _num(self.structure),
+                "structured_beyond": {"facet": STRUCTURED, "spreads": SPREADS_STRUCTURED},
                 "noise_rms": _num(self.noise_rms), "correlation_gain": _num(self.correlation_gain),
                 "facet_structure": None if self.facet_structure is None else np.round(self.facet_structure, 3).tolist(),
                 "correlations": self.strongest_correlations()}
@@ -195,6 +197,7 @@ class FitUncertainty:
 
     @classmethod
     def from_state(cls, state: dict) -> FitUncertainty:
+        """The uncertainty `state` wrote."""
         facet, noise = state["facet_structure"], state.get("noise")
         return cls(list(state["names"]), list(state["units"]), np.asarray(state["values"]),
                    np.asarray(state["covariance"]), float(state["misfit"]), float(state["structure"]),
@@ -429,7 +432,8 @@ def compared_jacobian(state: _State, params: list[_Parameter],
                       noise: NoiseModel) -> tuple[Tensor, Tensor, tuple[Tensor, Tensor]]:
     """(Jacobian (N*H*W, P) of the prediction as the loss compares it, in the parameters as the
     heliostat takes them (`perturbed`), the pixels' noise std (N*H*W,) at the predicted level
-    (`noise`: in the loss' units; at least NOISE_FLOOR of the peak), the prediction (images (N, H, W), lost flux (N,)))."""
+    (`noise`: in the loss' units; at least NOISE_FLOOR of the peak), the prediction (images
+    (N, H, W), lost flux (N,)))."""
     base = state.prediction(*state.traced(state.effects, state.tensors))
     compared = state.compared(*base)
     std = noise.std(compared).flatten().clamp_min(NOISE_FLOOR * float(compared.abs().max()))
@@ -601,7 +605,9 @@ def predicted_spread(state: _State, fitted: list[tuple[str, str]], masks: dict[s
     if [p.name for p in params] != uncertainty.names:
         raise ValueError("the uncertainty was computed for other parameters than this fit's")
     slant = float((state.scene.target.center - state.scene.heliostat.position).norm())
-    centroid = lambda images: state.scene.target.centroid(images.float()).double() / slant * 1e3  # (N, 2) mrad
+    def centroid(images: Tensor) -> Tensor:  # (N, 2) mrad
+        return state.scene.target.centroid(images.float()).double() / slant * 1e3
+
     images, _ = state.prediction(*state.traced(state.effects, state.tensors))
     c_columns = torch.zeros(len(images), 2, len(params), dtype=torch.float64)
     f_columns = torch.zeros(images.numel(), len(params), dtype=torch.float32) if with_flux else None

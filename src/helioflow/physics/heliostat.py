@@ -67,6 +67,7 @@ class Heliostat:
 
     @property
     def n_facets(self) -> int:
+        """The number of facets."""
         return self.facet_translation.shape[0]
 
     def ideal(self) -> Heliostat:
@@ -85,6 +86,7 @@ class Heliostat:
         return replace(self, **{k: getattr(self, k)[index] for k in per_facet})
 
     def to(self, device, dtype=torch.float32) -> Heliostat:
+        """The same heliostat with its tensors on `device` in `dtype`."""
         fields = {k: v.to(device=device, dtype=dtype) for k, v in vars(self).items() if isinstance(v, Tensor)}
         return replace(self, **fields)
 
@@ -147,7 +149,9 @@ def ideal_heliostat(
     """
     translation, size = facet_layout(rows, cols, width, height, gap)
     n = len(translation)
-    t = lambda a: torch.as_tensor(a, dtype=dtype)
+    def t(a) -> Tensor:
+        return torch.as_tensor(a, dtype=dtype)
+
     return Heliostat(
         position=t(position),
         mount=mount,

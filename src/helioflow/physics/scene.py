@@ -109,6 +109,7 @@ class LinearisedScene:
 
     @property
     def heliostat(self) -> Heliostat:
+        """The scene's heliostat."""
         return self.scene.heliostat
 
     def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,

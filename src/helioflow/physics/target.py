@@ -62,6 +62,7 @@ class Target:
 
     @property
     def pixel_area(self) -> float:
+        """The area of one pixel (m^2)."""
         pw, ph = self.pixel_size
         return pw * ph
 

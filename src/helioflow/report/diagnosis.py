@@ -53,7 +53,8 @@ def _remaining(d: dict) -> str:
         return ""
     changes = ", ".join(r.get("changes") or []) or "none"
     state = "explained down to the noise" if r.get("explained") else "<strong>not explained</strong>"
-    floor = "the floor" if not r.get("model_resolution") else f"the floor with the model's own resolution ({fmt(r['model_resolution'])})"
+    floor = ("the floor" if not r.get("model_resolution")
+             else f"the floor with the model's own resolution ({fmt(r['model_resolution'])})")
     return (f"<p>Noise floor (misplaced flux that noise alone leaves): {fmt(d['noise_floor'])}. After the chosen "
             f"changes ({esc(changes)}): {fmt(r.get('error'))}, {fmt(r.get('over_noise'))} times {floor}: {state}. "
             f"{esc(d.get('remaining_note', ''))}</p>")

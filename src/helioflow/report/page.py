@@ -152,7 +152,8 @@ def _heliostats_section(files: dict[str, list[str]]) -> str:
         if "surface" in data:
             s = data["surface"]
             rows.append(["surface deviation (RMS)", "mm", fixed(s["rms_mm"], 4), "", s["determined"]])
-        parts += [f"<h3>{esc(Path(path).stem)}</h3>", table(["quantity", "unit", "fitted", "sigma", "determined"], rows),
+        parts += [f"<h3>{esc(Path(path).stem)}</h3>",
+                  table(["quantity", "unit", "fitted", "sigma", "determined"], rows),
                   figure(str(Path(path).with_suffix(".png")), f"{Path(path).stem}: the fitted surface"),
                   download(path, "application/json")]
     return "\n".join(parts)
@@ -172,7 +173,8 @@ def _plan_section(files: dict[str, list[str]]) -> str:
                   *[(n.get("sigma_after") or {}).get(k) for k in keys]] for n in data["next"]]
         parts += [f"<h3>{esc(Path(path).stem)}</h3>",
                   f"<p>{esc(data.get('criterion'))} over {esc((data.get('candidates') or {}).get('source'))}.</p>",
-                  table(["image", "time (UTC)", "azimuth (deg)", "elevation (deg)", *[f"sigma {k}" for k in keys]], rows)]
+                  table(["image", "time (UTC)", "azimuth (deg)", "elevation (deg)", *[f"sigma {k}" for k in keys]],
+                        rows)]
     return "\n".join(parts)
 
 

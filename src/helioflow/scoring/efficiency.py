@@ -38,7 +38,8 @@ def plot_data_efficiency(metrics_paths: list[str], figure_path: str | os.PathLik
         for network in sorted({r["network"] for r in rows}):
             for split, style in zip(SPLITS_SHOWN, ("-o", "--s")):
                 pts = [(r["train_images"], r["psnr"]) for r in rows
-                       if r["dataset"] == dataset and r["network"] == network and r["split"] == split and r["psnr"] is not None]
+                       if r["dataset"] == dataset and r["network"] == network and r["split"] == split
+                       and r["psnr"] is not None]
                 if pts:
                     ax.plot(*zip(*pts), style, label=f"{network} {split}", ms=4)
         ax.set_xscale("log", base=2)

@@ -135,8 +135,9 @@ def _summary(result: dict) -> str:
         lines.append(f"slope error {pm(result['slope_error_mrad'])} mrad")
     if "surface" in result:
         surface = result["surface"]
-        lines.append(f"surface RMS {surface['rms_mm']:.3f} mm" + (
-            f", not determined on facets {surface['not_determined_facets']}" if surface["not_determined_facets"] else ""))
+        undetermined = surface["not_determined_facets"]
+        lines.append(f"surface RMS {surface['rms_mm']:.3f} mm"
+                     + (f", not determined on facets {undetermined}" if undetermined else ""))
     if result.get("at_design"):
         lines.append("at the design (not determined by the images): " + ", ".join(result["at_design"]))
     return "\n".join(lines)

@@ -127,7 +127,8 @@ def _with_sigma(out: dict, uncertainty: FitUncertainty, true) -> dict:
         flagged = np.array([n in uncertainty.undetermined for n in names])
         entry = dict(out[keys[prefix]])
         entry["sigma"] = (_rounded(torch.as_tensor(sigma)) if prefix in ("tracking.", "slope_error.sigma_mrad")
-                          else {"rms": round(float(np.sqrt(np.mean(sigma**2))), 5), "max": round(float(sigma.max()), 5)})
+                          else {"rms": round(float(np.sqrt(np.mean(sigma**2))), 5),
+                                "max": round(float(sigma.max()), 5)})
         if prefix == "slope_error.sigma_mrad":
             entry["sigma"] = entry["sigma"][0]
         entry["not_determined"] = int(flagged.sum())

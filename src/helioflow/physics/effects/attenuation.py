@@ -27,6 +27,7 @@ def vittitoe_biggs(slant_range_m: Tensor, hazy: bool) -> Tensor:
 
 
 def apply(build: Build, params: dict) -> None:
+    """The transmittance over the slant range: the chosen Vittitoe-Biggs fit, or a constant."""
     kind = EFFECT.value(params, "model")
     if kind == "constant":
         value = float(EFFECT.value(params, "transmittance"))
@@ -39,5 +40,6 @@ EFFECT = Effect(
     "attenuation", 60, "ray power", PARAMETERS, False,
     "atmospheric extinction over the slant range from mirror to target", apply,
     tried_as={"model": "constant", "transmittance": FIT}, neutral={"model": "constant", "transmittance": 1.0},
-    missing_text="atmospheric attenuation", signature_text="the measured flux is {ratio:.3f} times the model's (a scale)",
+    missing_text="atmospheric attenuation",
+    signature_text="the measured flux is {ratio:.3f} times the model's (a scale)",
 )

@@ -50,6 +50,7 @@ class Parameter:
 
     @property
     def fittable(self) -> bool:
+        """Whether a fit may free the parameter (not a choice, not fixed)."""
         return self.role not in ("choice", "fixed")
 
 
@@ -69,11 +70,13 @@ class Build:
     masks: list[Callable[[MirrorPoints], Tensor]] = field(default_factory=list)  # masks on the mirror: they multiply
 
     def optics(self) -> Optics:
-        mask = None
-        if self.masks:
-            masks = tuple(self.masks)
-            mask = lambda points: _product([m(points) for m in masks])
+        """The optics the build sets up, its masks on the mirror multiplied into one."""
+        mask = _multiplied(tuple(self.masks)) if self.masks else None
         return Optics(self.sun, self.slope_error, self.dni, self.reflectivity, self.transmittance, mask)
+
+
+def _multiplied(masks: tuple[Callable[[MirrorPoints], Tensor], ...]) -> Callable[[MirrorPoints], Tensor]:
+    return lambda points: _product([m(points) for m in masks])
 
 
 def _product(weights: list[Tensor]) -> Tensor:
@@ -172,6 +175,7 @@ class Effect:
     shared_by: str = ""
 
     def parameter(self, name: str) -> Parameter:
+        """The parameter `name`."""
         return next(p for p in self.parameters if p.name == name)
 
     def value(self, params: dict, name: str):

@@ -6,6 +6,7 @@ from helioflow.physics.effects.base import Build, Effect
 
 
 def apply(build: Build, params: dict) -> None:
+    """Rays lost to blocking and shading on the way in or out."""
     build.blocking_shading = True
 
 

@@ -15,7 +15,11 @@ PARAMETERS = (
 
 
 def apply(build: Build, params: dict) -> None:
-    value = lambda name: EFFECT.value(params, name)
+    """The camera's gain, background, blur, noise and noise seed."""
+
+    def value(name: str):
+        return EFFECT.value(params, name)
+
     build.camera = Camera(gain=value("gain"), background=value("background_w_m2"), blur_px=value("blur_px"),
                           noise=value("noise"), seed=int(value("seed")))
 

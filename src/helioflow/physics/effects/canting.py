@@ -18,7 +18,8 @@ def zero_mean(tilts: Tensor) -> Tensor:
 EFFECT = Effect(
     "canting", 40, "mirror normals", PARAMETERS, True, "per-facet tilt errors; unset: the heliostat's own",
     apply=lambda build, params: None, absent=zeroed("canting_error"),
-    tensor=TensorRole("facet_tilts_mrad", "canting_error", 0.01, all_free("facet_tilts_mrad", "canting_error"), zero_mean),
+    tensor=TensorRole("facet_tilts_mrad", "canting_error", 0.01, all_free("facet_tilts_mrad", "canting_error"),
+                      zero_mean),
     tried_as={"facet_tilts_mrad": FIT}, neutral={"facet_tilts_mrad": FIT},
     min_facets=(2, "one facet: its tilt is a tracking error"),
     missing_text="facet canting errors",

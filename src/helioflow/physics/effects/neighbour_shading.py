@@ -56,6 +56,7 @@ def lit(points: MirrorPoints, heliostat: Heliostat, neighbours: Tensor) -> Tenso
 
 
 def apply(build: Build, params: dict) -> None:
+    """A mask on the mirror: the points the neighbours leave lit (ConfigError without neighbours)."""
     if build.neighbours is None:
         raise ConfigError("neighbour_shading needs the neighbours' positions: a PAINT dataset lists them (the "
                           "other heliostats' folders within 30 m); this dataset has none")

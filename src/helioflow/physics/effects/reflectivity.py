@@ -8,11 +8,13 @@ PARAMETERS = (Parameter("value", 0.95, 0.0, 1.0, role="scale", doc="mirror refle
 
 
 def apply(build: Build, params: dict) -> None:
+    """The mirror's reflectivity."""
     build.reflectivity = EFFECT.value(params, "value")
 
 
 EFFECT = Effect(
     "reflectivity", 70, "ray power", PARAMETERS, False, "mirror reflectivity", apply,
     tried_as={"value": FIT}, neutral={"value": 1.0},
-    missing_text="a lower mirror reflectivity", signature_text="the measured flux is {ratio:.3f} times the model's (a scale)",
+    missing_text="a lower mirror reflectivity",
+    signature_text="the measured flux is {ratio:.3f} times the model's (a scale)",
 )

@@ -8,6 +8,7 @@ PARAMETERS = (Parameter("sigma_mrad", 1.0, 0.0, 20.0, doc="per-axis std of rando
 
 
 def apply(build: Build, params: dict) -> None:
+    """The per-axis std of the mirror's random slope errors (mrad -> rad)."""
     build.slope_error = EFFECT.value(params, "sigma_mrad") * 1e-3
 
 

@@ -21,6 +21,7 @@ PARAMETERS = (Parameter("gradient", 0.2, 0.0, 1.0,
 
 
 def apply(build: Build, params: dict) -> None:
+    """A mask on the mirror: the reflectance falling from the mirror's top edge to its bottom edge."""
     gradient = float(EFFECT.value(params, "gradient"))
     h = build.heliostat
     half = h.facet_size[:, 1] / 2.0

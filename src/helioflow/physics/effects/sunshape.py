@@ -16,6 +16,7 @@ PARAMETERS = (
 
 
 def apply(build: Build, params: dict) -> None:
+    """The sun shape (pillbox unless `kind` says otherwise)."""
     build.sun = SunShape.from_config({"kind": params.get("kind", "pillbox"),
                                       **{k: v for k, v in params.items() if k != "kind"}})
 
