@@ -72,12 +72,12 @@ def _stub_broken_torchvision() -> None:
 
 _stub_broken_torchvision()
 
-from artist.geometry import coordinates
-from artist.io import paint_scenario_parser
-from artist.raytracing import HeliostatRayTracer, reflect
-from artist.scenario import H5ScenarioGenerator, Scenario
-from artist.util import constants
-from artist.util.config import LightSourceConfig, LightSourceListConfig
+from artist.geometry import coordinates  # noqa: E402
+from artist.io import paint_scenario_parser  # noqa: E402
+from artist.raytracing import HeliostatRayTracer, reflect  # noqa: E402
+from artist.scenario import H5ScenarioGenerator, Scenario  # noqa: E402
+from artist.util import constants  # noqa: E402
+from artist.util.config import LightSourceConfig, LightSourceListConfig  # noqa: E402
 
 HELIOSTAT = "AA39"
 TARGET = "solar_tower_juelich_upper"

@@ -34,6 +34,7 @@ def full_then_cut(images, kernels, window=None):
 
 
 def main() -> None:
+    """Parse the command line and run the measurement the module docstring describes."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dataset", default="results/default/datasets/sanity_check.h5")
     ap.add_argument("--heliostat", default="results/default/surfaces/square.h5")

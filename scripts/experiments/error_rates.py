@@ -68,8 +68,8 @@ def diagnose_seed(world: World, known: dict, seed: int, root: Path) -> dict:
     held = list(np.random.default_rng(seed).choice(ids, HELD_OUT, replace=False))
     import_paint(folder, "AA39", folder / "data.h5", folder / "aa39.h5", holdout=held, dataset=f"seed{seed}")
     settings = {**DIAGNOSIS_DEFAULTS, "fit_images": N_IMAGES - HELD_OUT, "heldout_images": HELD_OUT, "max_effects": 1}
-    return diagnose_dataset(folder / "data.h5", folder / "aa39.h5", {**BELIEVED, **known}, settings, folder / "diagnosis.json",
-                            None, folder / "ledger.json")
+    return diagnose_dataset(folder / "data.h5", folder / "aa39.h5", {**BELIEVED, **known}, settings,
+                            folder / "diagnosis.json", None, folder / "ledger.json")
 
 
 def named_in(result: dict) -> tuple[list[str], set[str]]:
@@ -80,6 +80,7 @@ def named_in(result: dict) -> tuple[list[str], set[str]]:
 
 
 def main() -> None:
+    """Parse the command line and run the measurement the module docstring describes."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--cases", nargs="+", default=[*CAMERAS, *EFFECTS], choices=[*CAMERAS, *EFFECTS])

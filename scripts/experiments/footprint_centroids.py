@@ -80,6 +80,7 @@ def imported_aa39(world: World):
 
 
 def main() -> None:
+    """Parse the command line and run the measurement the module docstring describes."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sigma", type=float, default=3.3, help="the Gaussian sun's sigma per axis (mrad)")
     ap.add_argument("--against", help="a git revision whose footprint is traced too")

@@ -31,6 +31,7 @@ def installing(f):
 
 
 def main() -> None:
+    """Parse the command line and run the measurement the module docstring describes."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--against", default="main")
     ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000])

@@ -29,8 +29,7 @@ from support.paint_world import World, write_paint_folder  # noqa: E402
 from helioflow.data.hdf5 import read_dataset  # noqa: E402
 from helioflow.data.paint import import_paint  # noqa: E402
 from helioflow.data.surfaces import read_heliostat  # noqa: E402
-from helioflow.physics.scene import dataset_scene  # noqa: E402
-from helioflow.physics.scene import misplaced_flux  # noqa: E402
+from helioflow.physics.scene import dataset_scene, misplaced_flux  # noqa: E402
 from helioflow.workflow import DIAGNOSIS_DEFAULTS  # noqa: E402
 
 FEW, MANY = 400_000, 8_000_000
@@ -48,6 +47,7 @@ def images(world: World, rays: int, seed: int, n_images: int, folder: Path):
 
 
 def main() -> None:
+    """Parse the command line and run the measurement the module docstring describes."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=2)
     parser.add_argument("--images", type=int, default=12)
@@ -68,7 +68,8 @@ def main() -> None:
                     errors.append(float(misplaced_flux(pred, many, lost).mean()))
                 noise_many = float(misplaced_flux(many, few).mean()) / math.sqrt(MANY / FEW)
                 resolution = [math.sqrt(max(e * e - noise_many ** 2, 0.0)) for e in errors]
-                print(f"{camera} seed {seed}: model vs {MANY:,}-ray images {errors[0]:.4f} (finer model {errors[1]:.4f}), "
+                print(f"{camera} seed {seed}: model vs {MANY:,}-ray images {errors[0]:.4f} "
+                      f"(finer model {errors[1]:.4f}), "
                       f"their own noise {noise_many:.4f}: resolution {resolution[0]:.4f} (finer {resolution[1]:.4f})",
                       flush=True)
 

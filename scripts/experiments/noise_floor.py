@@ -36,6 +36,7 @@ BEYOND = {  # noise blurred over more than the floor can see: its power lies whe
 
 
 def main() -> None:
+    """Parse the command line and run the measurement the module docstring describes."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
     seeds = parser.parse_args().seeds
@@ -56,7 +57,10 @@ def main() -> None:
                          float(noise_floor(shifted, measured, measured_noise(shifted, measured))[0].mean()) / actual,
                          noise.correlation_px))
         r = np.array(rows)
-        cell = lambda c: f"{r[:, c].mean():.2f} ({r[:, c].min():.2f}-{r[:, c].max():.2f})"
+
+        def cell(c: int) -> str:
+            return f"{r[:, c].mean():.2f} ({r[:, c].min():.2f}-{r[:, c].max():.2f})"
+
         print(f"{name:34s} {cell(0):>18s} {cell(1):>18s} {cell(2):>18s} {r[:, 3].mean():8.2f}")
 
 

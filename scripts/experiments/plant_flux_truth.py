@@ -10,7 +10,8 @@ origin, helioflow's from the pivot (data.paint): a small difference of the two c
 Per design point: each map's flux accuracy against the truth (1 - sum|P - T| / sum T) and per
 heliostat the distance of its spot's centroid from the true spot's (m), ideal and calibrated.
 
-Run: python scripts/experiments/plant_flux_truth.py RESULTS_DIR PAINT_DIR [--plant plant] [--seed 11] [--rays 2000000] [--json out.json]
+Run: python scripts/experiments/plant_flux_truth.py RESULTS_DIR PAINT_DIR [--plant plant] [--seed 11]
+     [--rays 2000000] [--json out.json]
 """
 
 from __future__ import annotations
@@ -65,6 +66,7 @@ def true_spots(arrays: dict, attrs: dict, worlds: dict, rays: int, dni_w_m2: flo
 
 
 def score(results: Path, paint_dir: Path, plant: str, seed: int, rays: int, dni_w_m2: float) -> dict:
+    """The plant's flux maps in `results` scored against the generator's own rays at each design point."""
     truth = json.loads((paint_dir / "truth.json").read_text())
     arrays, attrs = read_arrays(results / "plant" / "flux" / f"{plant}.h5", SCHEMA)
     spots = true_spots(arrays, attrs, plant_worlds(len(truth), seed), rays, dni_w_m2, seed)
@@ -93,6 +95,7 @@ def score(results: Path, paint_dir: Path, plant: str, seed: int, rays: int, dni_
 
 
 def main() -> None:
+    """Parse the command line and run the measurement the module docstring describes."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("results")
     ap.add_argument("paint_dir")
@@ -109,7 +112,8 @@ def main() -> None:
         print(f"| {point} | {r['ideal']['flux_accuracy']} | {r['calibrated']['flux_accuracy']} | "
               f"{r['ideal']['power_error']:+.4f} | {r['calibrated']['power_error']:+.4f} |")
     print(f"spot centroid error against the truth, RMS over heliostats and design points: "
-          f"ideal {out['spot_centroid_error_rms_m']['ideal']} m, calibrated {out['spot_centroid_error_rms_m']['calibrated']} m")
+          f"ideal {out['spot_centroid_error_rms_m']['ideal']} m, "
+          f"calibrated {out['spot_centroid_error_rms_m']['calibrated']} m")
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
 

@@ -65,6 +65,7 @@ def visibility(world, kind: str, offset, n_images: int, rays: int, seed: int) ->
 
 
 def main() -> None:
+    """Parse the command line and run the measurement the module docstring describes."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("results")
     ap.add_argument("paint_dir")
@@ -75,7 +76,8 @@ def main() -> None:
     args = ap.parse_args()
     truth = json.loads((Path(args.paint_dir) / "truth.json").read_text())
     worlds = plant_worlds(len(truth), args.seed)
-    print("| heliostat | own effect | size | visibility (misplaced flux) | noise floor | over the floor | named | right |")
+    print("| heliostat | own effect | size | visibility (misplaced flux) | noise floor | over the floor | named "
+          "| right |")
     print("|---|---|---|---|---|---|---|---|")
     for name, (offset, world) in worlds.items():
         kind = world.truth["hidden"][-1]

@@ -55,7 +55,12 @@ def _tracking(path: Path) -> tuple[str, np.ndarray | None, np.ndarray | None]:
     return chosen, tracking.detach().cpu().double().numpy(), np.array([u.sigma[u.index(n)] for n in names])
 
 
+def _cell(r) -> str:
+    return "–" if r is None else f"{float(r['misplaced_flux']):.3f} / {float(r['centroid_mrad']):.1f}"
+
+
 def main() -> None:
+    """Parse the command line and run the measurement the module docstring describes."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--results", default="results/paint_heliostats")
     parser.add_argument("--full", help="leave_one_out/ of a freedom: full run, added as a column")
@@ -74,15 +79,16 @@ def main() -> None:
         whole = _tracking(root / "models" / group / "drt.pt") if (root / "models" / group / "drt.pt").exists() else None
         for mid in dict.fromkeys(i for i, _ in rows):
             ideal, drt, near = (rows.get((mid, n)) for n in ("raytrace", "drt", "nearest"))
-            cell = lambda r: "–" if r is None else f"{float(r['misplaced_flux']):.3f} / {float(r['centroid_mrad']):.1f}"
-            floor = None if diagnosis is None else _floor(diagnosis, float(drt["azimuth_deg"]), float(drt["elevation_deg"]))
+            floor = (None if diagnosis is None
+                     else _floor(diagnosis, float(drt["azimuth_deg"]), float(drt["elevation_deg"])))
             bar = None if floor is None else float(compared_floor(floor, True))
             chosen, tracking, sigma = _tracking(root / "models" / f"{group}_loo_{mid}" / "drt.pt")
             z = "–"
             if tracking is not None and whole is not None and whole[1] is not None:
                 z = f"{np.max(np.abs(tracking - whole[1]) / sigma):.1f}"
-            print(f"| {group} {mid} | {cell(ideal)} | {cell(drt)} | {chosen} | {z} | {cell(near)} | "
-                  f"{'–' if bar is None else f'{bar:.3f}'} |" + (f" {cell(full.get((mid, 'drt')))} |" if args.full else ""))
+            print(f"| {group} {mid} | {_cell(ideal)} | {_cell(drt)} | {chosen} | {z} | {_cell(near)} | "
+                  f"{'–' if bar is None else f'{bar:.3f}'} |"
+                  + (f" {_cell(full.get((mid, 'drt')))} |" if args.full else ""))
             summary.append((float(ideal["misplaced_flux"]), float(drt["misplaced_flux"]), bar))
     ideal, drt, bar = (np.array([s[k] if s[k] is not None else np.nan for s in summary]) for k in range(3))
     worse = drt - ideal > np.nan_to_num(bar, nan=0.0)

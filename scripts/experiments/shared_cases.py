@@ -37,10 +37,12 @@ def run(seed: int, n: int, n_images: int, folder: Path) -> dict:
         entries.append({"heliostat": name, "dataset_path": str(folder / f"{name}.h5"),
                         "heliostat_path": str(folder / f"{name}_geometry.h5"), "effects": BELIEVED})
     settings = {**SHARED_DEFAULTS, "fit_images": n_images - len(held), "heldout_images": len(held)}
-    return plant_shared({"settings": settings, "device": "cpu", "plants": {"plant": entries}}, folder / "shared.json")["plant"]
+    spec = {"settings": settings, "device": "cpu", "plants": {"plant": entries}}
+    return plant_shared(spec, folder / "shared.json")["plant"]
 
 
 def main() -> None:
+    """Parse the command line and run the measurement the module docstring describes."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[3, 4, 5])
     ap.add_argument("--heliostats", type=int, default=6)
@@ -59,7 +61,8 @@ def main() -> None:
         pull = "-" if blur is None else f"{(blur['value'] - TRUE_BLUR_PX) / blur['sigma']:+.1f}"
         kept = "-" if blur is None else f"{sum(a['kept'] for a in blur['alone'].values())} of {len(blur['alone'])}"
         print(f"| {seed} | {', '.join(out['changes']) or 'none'} | {words} | {pull} | {kept} | "
-              f"{out['heldout_error']['model']:.4f} -> {out['heldout_error']['shared']:.4f} | {time.time() - start:.0f} |",
+              f"{out['heldout_error']['model']:.4f} -> {out['heldout_error']['shared']:.4f} | "
+              f"{time.time() - start:.0f} |",
               flush=True)
 
 

@@ -36,6 +36,7 @@ def per_facet(revision: str, n_facets: int):
 
 
 def main() -> None:
+    """Parse the command line and run the measurement the module docstring describes."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--against", default="5e23a2f")
     ap.add_argument("--dataset", help="a dataset (HDF5) instead of AA39: its first 16 sun positions, with --heliostat")

@@ -37,6 +37,7 @@ def moments(image: np.ndarray) -> tuple[float, float]:
 
 
 def main() -> None:
+    """Parse the command line and run the measurement the module docstring describes."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cells", type=int, nargs="+", default=[16, 48])
     ap.add_argument("--slope-mrad", type=float, default=0.0)

@@ -55,8 +55,7 @@ from helioflow.models.physics_fit import (  # noqa: E402
 from helioflow.models.planning import image_information, plan  # noqa: E402
 from helioflow.models.uncertainty import Z95, end_state  # noqa: E402
 from helioflow.physics.effects import REGISTRY  # noqa: E402
-from helioflow.physics.scene import dataset_scene  # noqa: E402
-from helioflow.physics.scene import misplaced_flux  # noqa: E402
+from helioflow.physics.scene import dataset_scene, misplaced_flux  # noqa: E402
 
 TAKEN, CANDIDATES, HELD_OUT, ADDED, RAYS = 8, 24, 8, 4, 400_000
 RANDOM_DRAWS = 3  # random picks: the mean over this many draws
@@ -71,6 +70,7 @@ SETTINGS = FitSettings(steps=80, rounds=2, gauss_newton_steps=3, loss="shape")
 
 
 def model_effects(spread: tuple[str, str, float]) -> dict:
+    """The model's effects: the believed sun and a fitted tracking error, the case's spread freed too."""
     effect, name, _ = spread
     out = {**BELIEVED, **TRACKING}
     out[effect] = {**out.get(effect, {}), name: "fit"}
@@ -151,7 +151,8 @@ def run_case(name: str, seed: int, root: Path, known: int = TAKEN) -> dict:
                                                    "sigma": float(u.sigma[k]),
                                                    "within_95": bool(abs(u.values[k] - spread[2]) <= Z95 * u.sigma[k])},
            "structure": u.structure, "undetermined": u.undetermined,
-           "centroids": {"within_95": float(inside.mean()), "prediction_sigma_mrad": float(spot["centroid_sigma_mrad"].mean()),
+           "centroids": {"within_95": float(inside.mean()),
+                         "prediction_sigma_mrad": float(spot["centroid_sigma_mrad"].mean()),
                          "measurement_sigma_mrad": float(noise.mean()),
                          "error_mrad": float(np.abs(measured - spot["centroid_mrad"].numpy()).mean())}}
     # planning: the information of each candidate at the first fit
@@ -182,8 +183,9 @@ def run_case(name: str, seed: int, root: Path, known: int = TAKEN) -> dict:
                                        "sigma_worst": float(np.sqrt(np.mean(refit.uncertainty.sigma[worst] ** 2))),
                                        "sigma_worst_expected": expected.get(strategy),
                                        "structure": refit.uncertainty.structure,
-                                       "sigma_worst_noise_only": float(np.sqrt(np.mean(refit.uncertainty.sigma[worst] ** 2)
-                                                                               / max(1.0, refit.uncertainty.structure))),
+                                       "sigma_worst_noise_only": float(np.sqrt(
+                                           np.mean(refit.uncertainty.sigma[worst] ** 2)
+                                           / max(1.0, refit.uncertainty.structure))),
                                        **heldout_errors(refit)}
     draws = [out["strategies"][f"random {i + 1}"] for i in range(RANDOM_DRAWS)]
     out["strategies"]["random"] = {k: float(np.mean([d[k] for d in draws]))
@@ -195,6 +197,7 @@ def run_case(name: str, seed: int, root: Path, known: int = TAKEN) -> dict:
 
 
 def main() -> None:
+    """Parse the command line and run the measurement the module docstring describes."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--cases", nargs="+", default=list(CASES))

@@ -198,7 +198,8 @@ def _rewrite(csv_path: Path, edit) -> None:
 BAD = {
     "missing image": (lambda d, c: (d / "spot_3.png").unlink(),
                       r"sun\.csv line 5 \(image spot_3\): file 'spot_3\.png': .*images/spot_3\.png does not exist"),
-    "image of another size": (lambda d, c: Image.fromarray(np.uint16(_blob(0, (30, 20)) * 65535)).save(d / "spot_4.png"),
+    "image of another size": (lambda d, c: Image.fromarray(np.uint16(_blob(0, (30, 20)) * 65535)).save(
+                                  d / "spot_4.png"),
                               (r"sun\.csv line 6 \(image spot_4\): .*spot_4\.png is 20 x 30 pixels \(width x height\), "
                               r"the images before it 60 x 40")),
     "corrupt image": (lambda d, c: (d / "spot_1.png").write_bytes((d / "spot_1.png").read_bytes()[:200]),
@@ -214,12 +215,14 @@ BAD = {
     "azimuth without elevation": (lambda d, c: _rewrite(c, lambda r: [row.pop() for row in r]),
                                   r"sun\.csv: column 'azimuth_deg' without 'elevation_deg'"),
     "sun below the horizon": (lambda d, c: _rewrite(c, lambda r: r[3].__setitem__(2, "-2.5")),
-                              r"sun\.csv line 4 \(image spot_2\): sun elevation -2\.50 deg: the sun is below the horizon"),
+                              r"sun\.csv line 4 \(image spot_2\): sun elevation -2\.50 deg: "
+                              r"the sun is below the horizon"),
     "not a number": (lambda d, c: _rewrite(c, lambda r: r[2].__setitem__(1, "east")),
                      r"sun\.csv line 3: azimuth_deg = 'east': expected a finite number"),
     "repeated file": (lambda d, c: _rewrite(c, lambda r: r[6].__setitem__(0, "spot_0.png")),
                       r"sun\.csv line 7: id 'spot_0' is also the id of line 2"),
-    "empty CSV": (lambda d, c: c.write_text("file,azimuth_deg,elevation_deg\n"), r"sun\.csv has a header row but no images"),
+    "empty CSV": (lambda d, c: c.write_text("file,azimuth_deg,elevation_deg\n"),
+                  r"sun\.csv has a header row but no images"),
 }
 
 

@@ -129,7 +129,10 @@ def test_adding_a_candidate_never_raises_the_training_loss():
     split; a pair ends no worse than either of its members alone."""
     world = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 1.0}, "tracking": {"axis1_offset_mrad": 1.0}}
     d = diagnosis(world, {"sunshape": BUIE})
-    loss = lambda labels: d.fitted(labels)[1].history[-1]
+
+    def loss(labels) -> float:
+        return d.fitted(labels)[1].history[-1]
+
     nested = [c.label for c in d.tried if c.neutral is not None]
     assert {"tracking", "slope_error", "camera", "sunshape: fit csr"} <= set(nested)
     for label in nested:

@@ -92,6 +92,7 @@ def test_drt_on_two_real_images_chooses_its_freedom_and_the_written_heliostat_sa
     assert set(model.fitted.tensors) == freed
     written = fitted_heliostat(lower / "drt.pt")
     assert written["freedom"]["chosen"] == choice.chosen
-    kept = {"tracking", "canting", "surface", "slope error"} - freed - ({"slope error"} if choice.chosen == "full" else set())
+    kept = ({"tracking", "canting", "surface", "slope error"} - freed
+            - ({"slope error"} if choice.chosen == "full" else set()))
     assert set(written["at_design"]) == kept
     assert ("tracking_mrad" in written) == ("tracking" in freed)

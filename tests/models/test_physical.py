@@ -44,7 +44,8 @@ def test_gradients_through_each_heliostat_tensor_match_finite_differences(effect
     h = 0.01
     with torch.no_grad():
         numeric = (loss(values + h * direction) - loss(values - h * direction)) / (2 * h)
-    assert float((v.grad * direction).sum()) == pytest.approx(float(numeric), rel=0.1)  # bilinear deposits are piecewise linear: FD crosses kinks
+    # bilinear deposits are piecewise linear: FD crosses kinks
+    assert float((v.grad * direction).sum()) == pytest.approx(float(numeric), rel=0.1)
 
 
 @pytest.mark.slow
@@ -111,10 +112,12 @@ def test_drt_recovers_tracking_surface_and_slope_error_of_a_known_heliostat():
     amplitude, the slope error within 5 %."""
     s = scene()
     g = torch.Generator().manual_seed(4)
-    truth = {"tracking": torch.randn(5, generator=g), "surface": without_planes(torch.randn(1, 5, 5, generator=g)) * 0.5}
+    truth = {"tracking": torch.randn(5, generator=g),
+             "surface": without_planes(torch.randn(1, 5, 5, generator=g)) * 0.5}
     world = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 0.8}, "tracking": {}, "surface": {}}
     data = measured(s, world, truth, n=24)
-    result = fit_effects(s, drt_effects({"sunshape": BUIE}, n_facets=1), data, FitSettings(steps=100, rounds=6, coarse_blur_px=2.0))
+    result = fit_effects(s, drt_effects({"sunshape": BUIE}, n_facets=1), data,
+                         FitSettings(steps=100, rounds=6, coarse_blur_px=2.0))
     assert (result.tensors["tracking"] - truth["tracking"]).abs().max() < 0.2, result.tensors["tracking"]
     surface_error = (result.tensors["surface"] - truth["surface"]).pow(2).mean().sqrt()
     assert surface_error < 0.15 * truth["surface"].pow(2).mean().sqrt()

@@ -37,7 +37,10 @@ def test_soiling_takes_its_mean_from_the_power_and_dims_the_lower_part_of_each_f
     # reflectance falls linearly from 1 at the top edge to 0.4 at the bottom: its mean is 0.7
     assert float(soiled.sum() / clean.sum()) == pytest.approx(0.7, abs=0.005)
     rows = torch.arange(48, dtype=torch.float64)[:, None]
-    centroid_row = lambda image: float((image * rows).sum() / image.sum())
+
+    def centroid_row(image) -> float:
+        return float((image * rows).sum() / image.sum())
+
     assert centroid_row(soiled) < centroid_row(clean) - 0.2  # the spot's flux moves up (rows count downwards)
 
 
@@ -51,7 +54,10 @@ def test_the_fast_the_linearised_and_the_reference_tracer_agree_on_a_soiled_mirr
                  splat="kernel", cells_per_side=32)[0].numpy()
     ref = (reference_trace(physics.heliostat, tg, az, el, physics.optics, 400_000, seed=1)
            + reference_trace(physics.heliostat, tg, az, el, physics.optics, 400_000, seed=2)) / 2
-    psnr = lambda a, b: 10 * math.log10(max(a.max(), b.max()) ** 2 / np.mean((a - b) ** 2))
+
+    def psnr(a, b) -> float:
+        return 10 * math.log10(max(a.max(), b.max()) ** 2 / np.mean((a - b) ** 2))
+
     assert psnr(fast, ref) > 40.0, psnr(fast, ref)
     assert fast.sum() == pytest.approx(ref.sum(), rel=0.01)
     scene = Scene(heliostat(torch.float32), target(torch.float32), 1000.0, cells_per_side=16)

@@ -423,7 +423,8 @@ def test_many_rays_on_few_points_are_traced_in_runs_that_bound_memory_with_the_s
     assert whole.sum() > 0
 
 
-@pytest.mark.parametrize("shapes", [((64, 64), (109, 109), ((86, 64), (86, 64))), ((30, 20), (7, 11), ((3, 10), (0, 30))),
+@pytest.mark.parametrize("shapes", [((64, 64), (109, 109), ((86, 64), (86, 64))),
+                                    ((30, 20), (7, 11), ((3, 10), (0, 30))),
                                     ((16, 16), (33, 5), ((32, 16), (2, 16)))])
 def test_a_window_of_the_convolution_is_the_same_part_of_the_full_convolution(shapes):
     """The splat's convolution computes only the target's window, on a shorter circular FFT: it is

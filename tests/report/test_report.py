@@ -39,7 +39,8 @@ def _png(path: Path) -> str:
 
 def _dataset(path: Path) -> str:
     write_dataset(path, CalibrationDataset(
-        images=np.tile(np.array([[1, 1, 1], [1, 2, 1], [1, 1, 1]], np.float32), (4, 1, 1)), azimuth_deg=np.array([-20.0, 0.0, 10.0, 30.0]),
+        images=np.tile(np.array([[1, 1, 1], [1, 2, 1], [1, 1, 1]], np.float32), (4, 1, 1)),
+        azimuth_deg=np.array([-20.0, 0.0, 10.0, 30.0]),
         elevation_deg=np.array([20.0, 30.0, 40.0, 60.0]),
         split=np.array(["train", "train", "interpolation", "extrapolation"]),
         attrs={"dataset": "scan", "heliostat": "small", "source": "synthetic (helioflow trace)"}))
@@ -253,8 +254,8 @@ def test_report_inputs_of_the_tiny_config_list_the_expected_files():
         "datasets": [f"{r}/datasets/scan.h5", f"{r}/datasets/sky.h5"],
         "dataset_figures": [f"{r}/figures/datasets/scan.png", f"{r}/figures/datasets/sky.png"],
         "paint_centroids": [], "table": [], "samples": [], "psnr": [], "data_efficiency": [], "recovery": [],
-        "heliostats": [], "plan": [], "diagnosis": [], "diagnosis_figures": [], "field": [], "leave_one_out": [], "plant": [],
-        "plant_plan": [], "plant_flux": [], "plant_shared": [],
+        "heliostats": [], "plan": [], "diagnosis": [], "diagnosis_figures": [], "field": [], "leave_one_out": [],
+        "plant": [], "plant_plan": [], "plant_flux": [], "plant_shared": [],
     }
     config = copy.deepcopy(config)
     config.update(networks={"nearest": {}}, diagnosis={}, field={})

@@ -71,7 +71,8 @@ def check_case(case: str, result: dict) -> None:
                 for r in result["ranking"][:4]], remaining, result["noise_floor"])
     if hidden is None:  # outside the registry
         assert not remaining["explained"] and remaining["over_noise"] >= 2.0, summary
-        assert result["verdict"].startswith(f"A residual {remaining['over_noise']:.1f} times the noise"), result["verdict"]
+        assert result["verdict"].startswith(f"A residual {remaining['over_noise']:.1f} times the noise"), \
+            result["verdict"]
         location = result["location"]
         mirror = location["mirror"]
         assert "the lower third of every facet" in mirror["where"], mirror["where"]  # the lower part sends less

@@ -171,7 +171,8 @@ class Scene:
         # the importer's axes: right from upper_left to upper_right, up along the sides
         corners = {c: tower.enu(tower.data[target]["coordinates"][c])
                    for c in ("upper_left", "upper_right", "lower_left", "lower_right")}
-        right = 0.5 * ((corners["upper_right"] - corners["upper_left"]) + (corners["lower_right"] - corners["lower_left"]))
+        right = 0.5 * ((corners["upper_right"] - corners["upper_left"])
+                       + (corners["lower_right"] - corners["lower_left"]))
         up = 0.5 * ((corners["upper_left"] - corners["lower_left"]) + (corners["upper_right"] - corners["lower_right"]))
         self.right, self.up = right / np.linalg.norm(right), up / np.linalg.norm(up)
 
@@ -218,7 +219,8 @@ def trace_image(scene: Scene, world: World, azimuth_deg: float, elevation_deg: f
     normals = scene.normal.copy()
     if world.canting_mrad is not None:
         for f in range(n_facets):
-            tilt = rotation(e_axis[f], world.canting_mrad[f, 0] * 1e-3) @ rotation(n_axis[f], world.canting_mrad[f, 1] * 1e-3)
+            tilt = (rotation(e_axis[f], world.canting_mrad[f, 0] * 1e-3)
+                    @ rotation(n_axis[f], world.canting_mrad[f, 1] * 1e-3))
             normals[f] = tilt @ normals[f]
     points = scene.centre[facet] + u[:, None] * scene.half_e[facet] + v[:, None] * scene.half_n[facet]
     normal = normals[facet]
@@ -370,7 +372,8 @@ DEMO = World(tracking_mrad=(1.2, -0.9), camera=(0.03, 1.5))  # the PAINT demo: w
 
 
 def plant_worlds(n: int, seed: int, sun: tuple = ("gaussian", 2.51), camera: tuple = (0.03, 1.5),
-                 canting_rms_mrad: tuple[float, float] = (0.5, 1.0)) -> dict[str, tuple[tuple[float, float, float], World]]:
+                 canting_rms_mrad: tuple[float, float] = (0.5, 1.0),
+                 ) -> dict[str, tuple[tuple[float, float, float], World]]:
     """{name: (pivot offset from AA39's (m, ENU), world)} of a plant of n heliostats under one sun
     and one camera (what every heliostat of a calibration campaign shares), each with its own hidden
     effects drawn at random: a tracking error always (joint offsets, 0.3-1.5 mrad each, random

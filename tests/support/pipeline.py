@@ -28,7 +28,8 @@ PEAK_RSS = ("import resource, subprocess, sys; code = subprocess.call(sys.argv[2
             "open(sys.argv[1], 'w').write(str(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)); sys.exit(code)")
 
 
-def snakemake(workdir: Path, *args: str, timeout: int = 300, peak_rss: Path | None = None) -> subprocess.CompletedProcess:
+def snakemake(workdir: Path, *args: str, timeout: int = 300,
+              peak_rss: Path | None = None) -> subprocess.CompletedProcess:
     """`snakemake args` in `workdir` with the venv's commands; `peak_rss`: a file that receives the
     peak resident memory (kB) of snakemake's process."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("SNAKEMAKE")}

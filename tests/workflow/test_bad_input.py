@@ -52,7 +52,8 @@ def _config(edit: Callable[[dict], object], field: bool = False) -> dict:
 
 def _paint(**entry) -> Callable[[dict], None]:
     """An edit that adds a PAINT dataset `real` (AA39 from the sample data unless overridden)."""
-    return lambda c: c["datasets"].update(real={"source": "paint", "paint_dir": str(PAINT), "heliostat": "AA39", **entry})
+    return lambda c: c["datasets"].update(real={"source": "paint", "paint_dir": str(PAINT), "heliostat": "AA39",
+                                                **entry})
 
 
 OWN = REPO / "examples" / "own_images"
@@ -100,9 +101,12 @@ CONFIG_CASES = [
     Case("`experiment: ..`", _set("experiment", ".."), r"experiment = '\.\.': a name that becomes a file path"),
     Case("a dataset named `a b`", lambda c: c["datasets"].update({"a b": c["datasets"]["scan"]}),
          r"datasets: name 'a b': a name that becomes a file path"),
-    Case("`networks.cgan.steps: -5`", _set("networks.cgan.steps", -5), r"networks\.cgan\.steps = -5: expected an integer >= 1"),
-    Case("`batch_size: 0`", _set("networks.cgan.batch_size", 0), r"networks\.cgan\.batch_size = 0: expected an integer >= 1"),
-    Case("`batch_size: -3`", _set("networks.nerf.batch_size", -3), r"networks\.nerf\.batch_size = -3: expected an integer >= 1"),
+    Case("`networks.cgan.steps: -5`", _set("networks.cgan.steps", -5),
+         r"networks\.cgan\.steps = -5: expected an integer >= 1"),
+    Case("`batch_size: 0`", _set("networks.cgan.batch_size", 0),
+         r"networks\.cgan\.batch_size = 0: expected an integer >= 1"),
+    Case("`batch_size: -3`", _set("networks.nerf.batch_size", -3),
+         r"networks\.nerf\.batch_size = -3: expected an integer >= 1"),
     Case("`checkpoint_every: 0`", _set("networks.cgan.checkpoint_every", 0),
          r"networks\.cgan\.checkpoint_every = 0: expected an integer >= 1"),
     Case("`lr: \"fast\"`", _set("networks.cgan.lr", "fast"), r"networks\.cgan\.lr = 'fast': expected a number"),
@@ -160,8 +164,8 @@ CONFIG_CASES = [
 ACCEPTED_CASES = [
     Case("PAINT ids typed as numbers, `holdout: [270398]`", _paint(holdout=[270398]),
          "accepted: the ids become strings ('270398')"),
-    Case("`csr: null` beside `kind: gaussian` in a variant", _set("model.effects.sunshape",
-                                                                   {"kind": "gaussian", "sigma_mrad": "fit", "csr": None}),
+    Case("`csr: null` beside `kind: gaussian` in a variant",
+         _set("model.effects.sunshape", {"kind": "gaussian", "sigma_mrad": "fit", "csr": None}),
          "accepted: null removes config.yaml's key, anywhere in a variant"),
     Case("`field.layout: {kind: fermat, n: 5, min_radius_m: 20, positions: null}` in a variant",
          lambda c: c["field"]["layout"].update(kind="fermat", n=5, min_radius_m=20.0, positions=None),
@@ -362,7 +366,8 @@ def sixteen_bit_colour_png(tmp: Path) -> None:
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
 
     images = _images_folder(tmp, ["cam_01.png,0,40", "odd.png,10,45"])
-    (tmp / "images" / "odd.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 32, 32, 16, 2, 0, 0, 0))
+    (tmp / "images" / "odd.png").write_bytes(b"\x89PNG\r\n\x1a\n"
+                                            + chunk(b"IHDR", struct.pack(">IIBBBBB", 32, 32, 16, 2, 0, 0, 0))
                                             + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
     from helioflow.data.images import read_rows
     from helioflow.data.paint import read_grey_png
@@ -447,8 +452,8 @@ TWICE_MESSAGE = "helioflow: variant.yaml: the key 'networks' appears twice in on
 # a variant of nested aliases ("billion laughs"): a list of nine, then nine of the level below, eight times
 LAUGHS = "a0: &a0 [x, x, x, x, x, x, x, x, x]\n" + "".join(
     f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]\n" for i in range(1, 9))
-LAUGHS_MESSAGE = ("helioflow: variant.yaml: its aliases expand to 490,329,036 nodes beyond the 28 written, more than the "
-                  "bound 100,000; write the values out")
+LAUGHS_MESSAGE = ("helioflow: variant.yaml: its aliases expand to 490,329,036 nodes beyond the 28 written, more than "
+                  "the bound 100,000; write the values out")
 
 # --- the table in docs/bad_input.md ---------------------------------------------------------------
 

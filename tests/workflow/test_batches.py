@@ -25,7 +25,8 @@ PAINT = REPO / "tests" / "data" / "paint"
 
 def _config(group_size: int) -> dict:
     config = yaml.safe_load((REPO / "tests" / "workflow" / "tiny_config.yaml").read_text())
-    config["datasets"]["jul"] = {"source": "paint", "paint_dir": str(PAINT), "resolution": [16, 16], "heliostats": "all"}
+    config["datasets"]["jul"] = {"source": "paint", "paint_dir": str(PAINT), "resolution": [16, 16],
+                                 "heliostats": "all"}
     config.update(networks={"drt": {}, "nearest": {}}, diagnosis={}, plant={"group_size": group_size})
     return config
 

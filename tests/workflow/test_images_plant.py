@@ -79,7 +79,8 @@ def test_one_csv_becomes_one_dataset_per_heliostat_that_imports_as_the_same_plan
 
 @pytest.mark.parametrize("edit, message", [
     (lambda c, t: c["datasets"]["own"].update(heliostats="Q*"),
-     "datasets.own.heliostats: {csv}: 'Q*' selects no heliostat of column 'heliostat' (heliostats there: P000, P001, P002)"),
+     "datasets.own.heliostats: {csv}: 'Q*' selects no heliostat of column 'heliostat' "
+     "(heliostats there: P000, P001, P002)"),
     (lambda c, t: c["datasets"]["own"].update(heliostats=["P001", "P009"]),
      "datasets.own.heliostats: {csv}: no image of heliostat 'P009' in column 'heliostat'"),
     (lambda c, t: c["datasets"]["own"].update(heliostat_properties=str(WORLD / "P000" / "heliostat-properties.json")),

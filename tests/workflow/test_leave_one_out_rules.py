@@ -72,7 +72,8 @@ def test_rule_inputs_list_every_fold_per_network_and_the_report_takes_the_summar
     assert report_inputs(config)["leave_one_out"] == [f"{r}/figures/leave_one_out/aa39.png",
                                                       f"{r}/leave_one_out/aa39.csv"]
     assert centroid_datasets(config) == ["aa39"]  # the folds hold the same images: one check, on the whole
-    assert report_inputs(config)["heliostats"] == [f"{r}/heliostats/aa39.json", f"{r}/heliostats/aa39.png"]  # the whole one's fit, not the folds'
+    # the whole one's fit, not the folds'
+    assert report_inputs(config)["heliostats"] == [f"{r}/heliostats/aa39.json", f"{r}/heliostats/aa39.png"]
     config["diagnosis"] = {}
     assert report_inputs(config)["diagnosis"] == [f"{r}/diagnosis/{d}.json" for d in ("scan", "sky", "aa39")]
     with pytest.raises(ConfigError, match="no leave-one-out dataset 'scan'; leave-one-out datasets: aa39"):

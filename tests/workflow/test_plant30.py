@@ -20,8 +20,8 @@ import os
 import pytest
 import yaml
 from support.paint_world import plant_worlds, write_plant
-from support.plant_truth import score
 from support.pipeline import REPO, _workdir, snakemake
+from support.plant_truth import score
 
 HELIOSTATS, IMAGES, RAYS = 30, 30, 500_000
 BAR = {"named_right": 0.9, "pointing_recovered_rms_mrad": 0.1}

@@ -120,7 +120,8 @@ def test_every_heliostat_of_a_plant_takes_the_plant_fits_shared_effects():
     assert "shared" not in diagnose_params(config, "sky") and shared_inputs(config, "sky") == []
     config["plant"] = {"shared": False}  # each heliostat alone: no plant fit
     assert shared_inputs(config, "jul_AA39") == [] and plant_shared_spec(config)["plants"] == {}
-    assert "shared" not in diagnose_params(config, "jul_AA39") and "shared" not in train_inputs(config, "jul_AA39", "drt")
+    assert "shared" not in diagnose_params(config, "jul_AA39")
+    assert "shared" not in train_inputs(config, "jul_AA39", "drt")
 
 
 def test_dry_run_fits_the_shared_effects_once_before_every_heliostats_fit_and_diagnosis(dry_run):
