@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 from abc import ABCMeta, abstractmethod
 from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 from torch import Tensor, nn
@@ -63,8 +64,7 @@ class SpotModel(nn.Module, metaclass=ABCMeta):
     name: str = "model"
     controllable: bool = True
     uses_loop: bool = True  # False: `prepare` does all the fitting and the loop runs no steps
-    curve: list[dict[str, float]] = []  # a model that fits itself in `prepare` puts its curve here
-    image_shape: tuple[int, int]  # set by every subclass's __init__
+    curve: ClassVar[list[dict[str, float]]] = []  # a model that fits itself in `prepare` puts its curve here
     device = torch.device("cpu")  # where the model computes (`to_device`)
 
     def to_device(self, device: torch.device) -> SpotModel:

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import torch
 from torch import Tensor
@@ -199,8 +198,7 @@ def zeroed(name: str) -> Callable[[Build], None]:
     """An `absent` hook: the heliostat's own tensor `name` (a Heliostat field) set to zeros."""
 
     def absent(build: Build) -> None:
-        zeros: dict[str, Any] = {name: torch.zeros_like(getattr(build.heliostat, name))}
-        build.heliostat = replace(build.heliostat, **zeros)
+        build.heliostat = replace(build.heliostat, **{name: torch.zeros_like(getattr(build.heliostat, name))})
 
     return absent
 
