@@ -27,7 +27,7 @@ class _StrictLoader(yaml.SafeLoader):
     silently: a variant with two `networks:` blocks would run with the second alone)."""
 
     def construct_mapping(self, node, deep=False):
-        seen = {}
+        seen: dict = {}
         for key_node, _ in node.value:
             if key_node.tag == "tag:yaml.org,2002:merge":  # `<<`: what it brings in may be overridden, as
                 continue  # YAML means (and the merge tag has no constructor of its own)
@@ -124,7 +124,8 @@ def validate_config(config: dict, schema_path: str | Path = SCHEMA_PATH, source:
 
     schema = yaml.safe_load(Path(schema_path).read_text())
     validator = jsonschema.Draft7Validator(schema)
-    errors = sorted(validator.iter_errors(config), key=lambda e: (len(e.absolute_path), list(map(str, e.absolute_path))))
+    errors = sorted(validator.iter_errors(config),
+                    key=lambda e: (len(e.absolute_path), list(map(str, e.absolute_path))))
     if errors:
         raise ConfigError(f"{source}: {_describe(errors[0])}")
     config = copy.deepcopy(config)
@@ -198,7 +199,8 @@ def _describe(error) -> str:
         return f"{key} ({len(error.instance)} entries): expected at most {expected}{_why(error)}"
     if rule == "maxLength":
         name = f"{key}: name" if "propertyNames" in error.schema_path else key
-        return f"{name} {error.instance[:20]!r}... ({len(error.instance)} characters): expected at most {expected} characters{_why(error)}"
+        return (f"{name} {error.instance[:20]!r}... ({len(error.instance)} characters): expected at most {expected} "
+                f"characters{_why(error)}")
     if rule == "oneOf":
         inner = [e for e in error.context if e.validator not in ("type", "const", "enum", "oneOf")]
         if len(inner) == 1:  # one alternative is of the value's type: why that one refuses it
@@ -284,9 +286,11 @@ def _check_references(config: dict, source: str) -> None:
     for name in (config.get("plan") or {}).get("datasets") or []:
         if name not in config["datasets"]:
             raise ConfigError(f"{source}: plan.datasets has {name!r}, which is not in datasets (known: "
-                              f"{', '.join(config['datasets'])}); a variant without it sets plan: null or its own datasets")
+                              f"{', '.join(config['datasets'])}); a variant without it sets plan: null or its own "
+                              "datasets")
         if "drt" not in (config.get("networks") or {}):
-            raise ConfigError(f"{source}: plan.datasets has {name!r}, but networks has no drt, whose fit a plan is made from")
+            raise ConfigError(f"{source}: plan.datasets has {name!r}, but networks has no drt, whose fit a plan is "
+                              "made from")
     if config.get("field"):
         _check_field(config, f"{source}: field")
     flux = (config.get("plant") or {}).get("flux")
@@ -509,7 +513,8 @@ def _check_images_dataset(config: dict, name: str, where: str) -> None:
         raise ConfigError(f"{where}.images_dir = {ds['images_dir']!r}: no such folder")
     try:
         columns = read_table(ds["csv"])[0]
-        for heliostat in csv_heliostats(ds["csv"], ds["heliostats"]) if "heliostats" in ds else [None]:
+        selected: list[str | None] = list(csv_heliostats(ds["csv"], ds["heliostats"])) if "heliostats" in ds else [None]
+        for heliostat in selected:
             check_files(ds["csv"], ds["images_dir"], heliostat)
     except DataError as exc:
         raise ConfigError(f"{where}.csv: {exc}") from None

@@ -14,7 +14,8 @@ RMS of its length 98 % of the time when it is isotropic).
 The worlds are drawn again from the generator's seed (`--seed`, the demo's by default). The shared effects:
 what plant/shared.json changed, against the camera and sun the generator used.
 
-Run: python tests/support/plant_truth.py RESULTS_DIR PAINT_DIR [--plant plant] [--model drt] [--seed 11] [--json out.json]
+Run: python tests/support/plant_truth.py RESULTS_DIR PAINT_DIR [--plant plant] [--model drt] [--seed 11]
+     [--json out.json]
 """
 
 from __future__ import annotations
@@ -29,12 +30,11 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: support.paint_world, run as a script
-from support.paint_world import PLANT_DEMO, Scene, World, plant_worlds, rotation, sun_vector  # noqa: E402
-
 from helioflow.data.hdf5 import read_dataset  # noqa: E402
 from helioflow.models.registry import load_model  # noqa: E402
 from helioflow.physics.geometry import sun_vector as helioflow_sun  # noqa: E402
 from helioflow.physics.heliostat import orientation  # noqa: E402
+from support.paint_world import PLANT_DEMO, Scene, World, plant_worlds, rotation, sun_vector  # noqa: E402
 
 EFFECT_OF = {"tracking": "tracking", "canting": "canting", "bump": "surface", "slope": "slope_error"}
 
@@ -46,8 +46,8 @@ def mean_normal(scene: Scene, canting_mrad: np.ndarray | None) -> np.ndarray:
         e_axis = scene.half_e / np.linalg.norm(scene.half_e, axis=-1, keepdims=True)
         n_axis = scene.half_n / np.linalg.norm(scene.half_n, axis=-1, keepdims=True)
         for f in range(len(normals)):
-            normals[f] = (rotation(e_axis[f], canting_mrad[f, 0] * 1e-3) @ rotation(n_axis[f], canting_mrad[f, 1] * 1e-3)
-                          @ normals[f])
+            normals[f] = (rotation(e_axis[f], canting_mrad[f, 0] * 1e-3)
+                          @ rotation(n_axis[f], canting_mrad[f, 1] * 1e-3) @ normals[f])
     mean = normals.mean(0)
     return mean / np.linalg.norm(mean)
 
@@ -141,7 +141,8 @@ def score(results: Path, paint_dir: Path, plant: str, model_name: str, seed: int
             "pointing_covered": (None if any(r["pointing_covered"] is None for r in rows)
                                  else sum(r["pointing_covered"] for r in rows) / len(rows)),
             "shared_changes": None if shared is None else shared["changes"],
-            "shared_values": None if shared is None else {n: v for s in shared["shared"] for n, v in s["values"].items()}}
+            "shared_values": None if shared is None else {
+                n: v for s in shared["shared"] for n, v in s["values"].items()}}
 
 
 def main() -> None:
@@ -164,9 +165,12 @@ def main() -> None:
               f"{'yes' if r['right'] else 'no'} | {r['true_pointing_mrad']} | {r['pointing_recovered_mrad']} | "
               f"{r['pointing_sigma_mrad']} |")
     covered = "not known" if out["pointing_covered"] is None else f"{out['pointing_covered']:.0%}"
-    print(f"named right: {out['named_right']:.0%}; pointing recovered to {out['pointing_recovered_rms_mrad']} mrad RMS, "
+    print(f"named right: {out['named_right']:.0%}; pointing recovered to {out['pointing_recovered_rms_mrad']} mrad "
+          "RMS, "
           f"within 2 sigma on {covered} (recovered / sigma median {out['pointing_over_sigma_median']}: a sigma far "
-          f"above the error covers without telling how well the pointing is known); canting named on {out['canting_named']:.0%} of those with one; shared changes: {out['shared_changes']} {out['shared_values'] or ''}")
+          f"above the error covers without telling how well the pointing is known); canting named on "
+          f"{out['canting_named']:.0%} of those with one; shared changes: {out['shared_changes']} "
+          f"{out['shared_values'] or ''}")
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
 

@@ -334,9 +334,9 @@ class PlantFit:
         if key in self.joints:
             return self.joints[key]
         effects = self.effects_with(key)
-        starts = [None] * len(self.members)
+        starts: list[FitResult | None] = [None] * len(self.members)
         if key:
-            starts = min((self.joint(key - {label}) for label in key), key=lambda j: j.error).fits
+            starts = list(min((self.joint(key - {label}) for label in key), key=lambda j: j.error).fits)
         fits = [fit_effects(m.scene, effects, m.train, self.settings, start=s) for m, s in zip(self.members, starts)]
         self.alone[key] = fits
         spreads = self.shared_spreads(effects)
@@ -395,6 +395,7 @@ class PlantFit:
     def _sigma(self, member: Member, fit: FitResult, name: str) -> float:
         """The marginal sigma of the fitted value `name` in one heliostat's fit."""
         u = with_uncertainty(member.scene, fit, member.train, "shape").uncertainty
+        assert u is not None, "with_uncertainty gives every fit its uncertainty"
         return float(u.sigma[u.index(name)])
 
 

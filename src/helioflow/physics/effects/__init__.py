@@ -57,8 +57,9 @@ REGISTRY: dict[str, Effect] = discover(Path(__file__).parent, __name__)
 TENSOR_EFFECTS = {name: e.tensor for name, e in REGISTRY.items() if e.tensor is not None}
 
 
-def check_effects(effects: dict, where: str, allow_fit: bool) -> None:
-    """Raise ConfigError naming `where` (e.g. 'world.effects') for an unknown effect, parameter or value."""
+def check_effects(effects: dict | None, where: str, allow_fit: bool) -> None:
+    """Raise ConfigError naming `where` (e.g. 'world.effects') for an unknown effect, parameter or value
+    (None: no effects)."""
     for name, params in (effects or {}).items():
         if name not in REGISTRY:
             raise ConfigError(f"{where}: unknown effect {name!r}; allowed: {', '.join(REGISTRY)}")
