@@ -44,6 +44,7 @@ import multiprocessing as mp
 import resource
 import time
 
+import numpy as np
 import torch
 
 from helioflow.data.surfaces import HeliostatSpec, true_heliostat
@@ -196,7 +197,7 @@ def field_scene(n: int, device: str | torch.device = "cpu"):
     return field, receiver, physics[0], az, el
 
 
-def _field_worker(n: int, threads: int, device: str, queue) -> None:
+def _field_worker(n: int, threads: int, device: str | torch.device, queue) -> None:
     torch.set_num_threads(threads)
     device = resolve_device(device)
     cuda = device.type == "cuda"
@@ -294,7 +295,7 @@ def fit(dataset: str, heliostat: str, threads: int) -> None:
         count[0] += 1
         return traced(self, *args, **kwargs)
 
-    _Fitter.traced = counted
+    _Fitter.traced = counted  # type: ignore[method-assign]  # counts the fit's traces
     truth = surface_heights(true.control_heights.double() * 1e3)
     print(f"{dataset}: {design.n_facets} facets, {len(index)} fit images, {threads} threads")
     for name, (s, scene_) in runs.items():
@@ -307,12 +308,12 @@ def fit(dataset: str, heliostat: str, threads: int) -> None:
             images, az, el = split(ds.indices(name_))
             with torch.no_grad():
                 predicted = predicting.simulate(result.effects, result.tensors, az, el, seed=1) / scale
-            scores.append(f"{name_} {float(metric_psnr(predicted.numpy(), images.numpy()).mean()):.2f} dB")
+            scores.append(f"{name_} {float(np.mean(metric_psnr(predicted.numpy(), images.numpy()))):.2f} dB")
         heights = surface_heights(result.tensors["surface"].double())
         error = float((heights - truth).pow(2).mean().sqrt() / truth.pow(2).mean().sqrt())
         print(f"  {name}: {wall:.0f} s, {count[0]} traces, held-out PSNR {', '.join(scores)}, "
               f"height error {error:.1%}")
-    _Fitter.traced = traced
+    _Fitter.traced = traced  # type: ignore[method-assign]
 
 
 def write_plant_dir(folder, n: int, template="examples/plant_world", images: int = 2) -> None:

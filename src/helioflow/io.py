@@ -19,7 +19,7 @@ from torch import Tensor
 from helioflow.errors import DataError, OutputError
 
 
-def write_atomic(path: str | os.PathLike, write: Callable[[Path], None]) -> None:
+def write_atomic(path: str | os.PathLike, write: Callable[[Path], object]) -> None:
     """Write a file with `write(temporary path)` under a temporary name (`.<name>.tmp` beside it),
     then rename it into place; makes its folder. If writing fails, the temporary file is removed
     and OutputError names the file (an OSError such as a full disk, or torch's RuntimeError for

@@ -342,7 +342,7 @@ def heliostat_path(config: dict, dataset: str) -> str:
 
 def train_inputs(config: dict, dataset: str, model: str) -> dict:
     """Files rule `train` reads: the dataset, and for a physics model the heliostat file."""
-    inputs = {"dataset": f"{results_dir(config)}/datasets/{dataset}.h5"}
+    inputs: dict[str, str | list[str]] = {"dataset": f"{results_dir(config)}/datasets/{dataset}.h5"}
     if parse_model(model)[0] in PHYSICS_MODELS:
         inputs["heliostat"] = heliostat_path(config, dataset)
         shared = shared_inputs(config, dataset)
@@ -530,7 +530,9 @@ def layout_positions(layout: dict, mirror: list[float] | None) -> list[list[floa
     else:
         spacing = spec["spacing_m"]
         if spacing == "auto":
-            spacing = geometry.min_spacing(*mirror, spec["clearance_m"])
+            assert mirror is not None, "an auto spacing needs the template mirror"
+            width, height = mirror
+            spacing = geometry.min_spacing(width, height, spec["clearance_m"])
         generate = geometry.fermat_spiral if spec["kind"] == "fermat" else geometry.radial_staggered
         positions = generate(spec["n"], spacing, spec["min_radius_m"], spec["sector_deg"],
                              spec["pivot_height_m"])

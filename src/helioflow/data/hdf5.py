@@ -222,7 +222,7 @@ def _check_images(images: np.ndarray, path, ds: CalibrationDataset) -> None:
 def write_dataset(path: str | os.PathLike, ds: CalibrationDataset) -> None:
     """Validate ``ds`` and write it atomically to ``path`` (layout in the module docstring)."""
     _validate(ds, path)
-    arrays = {
+    arrays: dict[str, np.ndarray] = {
         "images": np.asarray(ds.images, dtype=np.float32),
         "sun/azimuth_deg": np.asarray(ds.azimuth_deg, dtype=np.float64),
         "sun/elevation_deg": np.asarray(ds.elevation_deg, dtype=np.float64),

@@ -341,9 +341,8 @@ def read_rows(csv_path: str | os.PathLike, images_dir: str | os.PathLike,
                             "below the horizon; expected 0 < elevation <= 90")
         if e > 90:
             raise DataError(f"{csv_path} line {line} (image {mid}): {ELEVATION} = {e:g}: expected 0 < elevation <= 90")
-    rows = [Row(line, mid, name, images_dir / name, float(a), float(e), row.get(TIMESTAMP, ""))
-            for (line, mid, name), row, a, e in zip(ids, rows, az, el)]
-    return rows, source
+    return [Row(line, mid, name, images_dir / name, float(a), float(e), row.get(TIMESTAMP, ""))
+            for (line, mid, name), row, a, e in zip(ids, rows, az, el)], source
 
 
 # --- the images ------------------------------------------------------------------------------------
@@ -462,7 +461,8 @@ def build_dataset(spec: dict, geometry):
         r = missing[0]
         more = f" ({len(missing)} of {len(rows)} images are missing)" if len(missing) > 1 else ""
         raise DataError(f"{csv_path} line {r.line} (image {r.id}): {FILE} {r.file!r}: {r.path} does not exist{more}")
-    raw, saturated, shape = [], [], None
+    raw, saturated = [], []
+    shape: tuple[int, ...] | None = None
     for r in rows:
         where = f"{csv_path} line {r.line} (image {r.id})"
         image, full = read_grey_png(r.path, where, "remove its row or repair the image")
@@ -474,6 +474,7 @@ def build_dataset(spec: dict, geometry):
                             "the same size (each is then resampled to the resolution)")
         raw.append(image)
         saturated.append(full)
+    assert shape is not None  # rows is not empty
     aspect_image, aspect_target = shape[1] / shape[0], plane.width / plane.height
     if abs(aspect_image / aspect_target - 1.0) > ASPECT_TOLERANCE:
         log.warning("%s: the images are %d x %d pixels (width : height %.3f), the target %.3f m x %.3f m (%.3f): "

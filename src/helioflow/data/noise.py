@@ -185,8 +185,8 @@ def measure_noise(images: Tensor, signal: Tensor | None = None) -> NoiseModel:
     are (the residual images - prediction: no spot left whose curvature the operator could see)."""
     x = images.detach().double().cpu()[:, None]
     response = torch.nn.functional.conv2d(x, OPERATOR.double()[None, None]).flatten().numpy()
-    levels = x if signal is None else signal.detach().double().cpu()[:, None]
-    level = torch.nn.functional.avg_pool2d(levels, 3, stride=1).flatten().numpy()
+    source = x if signal is None else signal.detach().double().cpu()[:, None]
+    level = torch.nn.functional.avg_pool2d(source, 3, stride=1).flatten().numpy()
     dark = level <= ZERO * max(float(x.abs().max()), 1e-30)
     groups = [np.flatnonzero(dark)] if dark.any() else []
     lit = np.flatnonzero(~dark)

@@ -86,8 +86,10 @@ import json
 import logging
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -187,6 +189,33 @@ def field(data: dict, path: Path, key: str, kind: str = "number", where: str = "
 
 def _is_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+class ENUFrame(Protocol):
+    """What reading a heliostat's properties needs of a frame (Tower, images.WGS84Origin)."""
+
+    def enu(self, wgs84) -> np.ndarray:
+        """(..., 3) WGS84 (lat deg, lon deg, alt m) -> (..., 3) ENU m."""
+        ...
+
+
+class SunPositioned(Protocol):
+    """What split_labels reads of a measurement (Measurement, images._Held)."""
+
+    @property
+    def id(self) -> str:
+        """The measurement id."""
+        ...
+
+    @property
+    def azimuth_deg(self) -> float:
+        """The sun's azimuth (deg)."""
+        ...
+
+    @property
+    def elevation_deg(self) -> float:
+        """The sun's elevation (deg)."""
+        ...
 
 
 class Tower:
@@ -460,7 +489,7 @@ def plant_heliostats(paint_dir: str | os.PathLike, selection: str | list[str]) -
     return chosen
 
 
-def read_heliostat_properties(path: Path, tower: Tower) -> tuple[Heliostat, dict]:
+def read_heliostat_properties(path: Path, tower: ENUFrame) -> tuple[Heliostat, dict]:
     """The ideal heliostat (float64) of a heliostat-properties.json and its provenance attributes."""
     if not path.is_file():
         found = len(list(path.parent.glob(f"*{CALIBRATION_SUFFIX}")))
@@ -557,7 +586,7 @@ def read_measurements(folder: Path, tower: Tower, targets: list[str] | None,
     return measurements
 
 
-def held_out(ids: list[str], holdout: list[str] | dict) -> list[str]:
+def held_out(ids: list[str], holdout: Sequence[str] | dict) -> list[str]:
     """The held-out ids: `holdout` itself (a list of ids), or a seeded random share of `ids`
     ({fraction, seed}: round(fraction * N) of them, at least one, never all)."""
     if not isinstance(holdout, dict):
@@ -567,7 +596,7 @@ def held_out(ids: list[str], holdout: list[str] | dict) -> list[str]:
     return [i for k, i in enumerate(ids) if k in chosen]
 
 
-def split_labels(measurements: list[Measurement], holdout: list[str] | dict, folder: Path) -> np.ndarray:
+def split_labels(measurements: Sequence[SunPositioned], holdout: Sequence[str] | dict, folder: Path) -> np.ndarray:
     """(N,) split labels: train, or for held-out ids interpolation/extrapolation (module docstring);
     `holdout`: ids, or {fraction, seed} (`held_out`)."""
     ids = [m.id for m in measurements]
@@ -582,7 +611,7 @@ def split_labels(measurements: list[Measurement], holdout: list[str] | dict, fol
     az = [m.azimuth_deg for m in train]
     el = [m.elevation_deg for m in train]
 
-    def label(m: Measurement) -> str:
+    def label(m: SunPositioned) -> str:
         if m.id not in holdout:
             return "train"
         inside = min(az) <= m.azimuth_deg <= max(az) and min(el) <= m.elevation_deg <= max(el)
@@ -619,7 +648,7 @@ def import_paint(
     dataset_path: str | os.PathLike | None = None,
     heliostat_path: str | os.PathLike | None = None,
     resolution: tuple[int, int] = (64, 64),
-    holdout: list[str] | dict = (),
+    holdout: Sequence[str] | dict = (),
     targets: list[str] | None = None,
     dataset: str | None = None,
     dni_w_m2: float = 1000.0,
@@ -659,7 +688,7 @@ def import_paint(
     ds = None
     if dataset_path is not None:
         spec = {"paint_dir": str(paint_dir), "targets": targets, "dni_w_m2": float(dni_w_m2), "centered": centered}
-        ds = build_dataset(measurements, tower, geometry, tuple(resolution), holdout, folder,
+        ds = build_dataset(measurements, tower, geometry, (resolution[0], resolution[1]), holdout, folder,
                            dataset or heliostat, heliostat, spec)
         ds.attrs["neighbours_enu_m"] = neighbour_positions(paint_dir, tower, heliostat, geometry.position.numpy())
     write_imported(dataset_path, ds, heliostat_path, geometry, source=source)
@@ -674,6 +703,7 @@ def write_imported(dataset_path: str | os.PathLike | None, ds: CalibrationDatase
     written: list[Path] = []
     try:
         if dataset_path is not None:
+            assert ds is not None  # a dataset path comes with its dataset
             write_dataset(dataset_path, ds)
             written.append(Path(dataset_path))
         if heliostat_path is not None:
@@ -708,8 +738,8 @@ def relative_flux_attrs(geometry: Heliostat, target: PlaneTarget, dni_w_m2: floa
 
 
 def build_dataset(measurements: list[Measurement], tower: Tower, geometry: Heliostat,
-                  resolution: tuple[int, int], holdout: list[str], folder: Path, dataset: str, heliostat: str,
-                  spec: dict) -> CalibrationDataset:
+                  resolution: tuple[int, int], holdout: Sequence[str] | dict, folder: Path, dataset: str,
+                  heliostat: str, spec: dict) -> CalibrationDataset:
     """The CalibrationDataset of a heliostat's measurements (images resampled to `resolution`, centered
     ones placed on their targets)."""
     planes = [tower.target(m.target_name, folder) for m in measurements]

@@ -44,11 +44,13 @@ def sun_positions(sun: dict, seed: int) -> tuple[np.ndarray, np.ndarray]:
     list: the given [azimuth, elevation] pairs.
     """
     if sun["kind"] == "scan":
-        el = np.linspace(*sun["elevation_deg"], sun["n"])
+        first, last = sun["elevation_deg"]
+        el = np.linspace(first, last, sun["n"])
         return np.full_like(el, float(sun["azimuth_deg"])), el
     if sun["kind"] == "hemisphere":
         rng = np.random.default_rng(sun.get("seed", seed))
-        az = rng.uniform(*sun["azimuth_deg"], sun["n"])
+        west, east = sun["azimuth_deg"]
+        az = rng.uniform(west, east, sun["n"])
         lo, hi = np.sin(np.radians(sun["elevation_deg"]))
         return az, np.degrees(np.arcsin(rng.uniform(lo, hi, sun["n"])))
     pos = np.asarray(sun["positions_deg"], dtype=float)
@@ -138,15 +140,15 @@ def check_on_target(images: torch.Tensor, az_deg: np.ndarray, el_deg: np.ndarray
 def trace_images(physics: Physics, heliostat, target: Target, az, el, settings: dict, seed: int,
                  batch: int = 16) -> torch.Tensor:
     """(S, H, W) measured images (world physics + camera), traced in batches of sun positions."""
-    images = []
+    batches: list[torch.Tensor] = []
     with torch.no_grad():
         for i, start in enumerate(range(0, len(az), batch)):
             sl = slice(start, start + batch)
-            images.append(trace(heliostat, target, az[sl], el[sl], physics.optics, rays=settings.get("rays", 0),
+            batches.append(trace(heliostat, target, az[sl], el[sl], physics.optics, rays=settings.get("rays", 0),
                                 splat=settings["splat"], cells_per_side=settings.get("cells_per_side", 32),
                                 seed=seed + i))
             log.info("traced %d / %d sun positions", min(start + batch, len(az)), len(az))
-    images = torch.cat(images)
+    images = torch.cat(batches)
     return physics.camera.apply(images) if physics.camera is not None else images
 
 

@@ -53,11 +53,12 @@ def candidates(effects: dict, n_facets: int, known: frozenset = frozenset()) -> 
         present = name in effects
         if effect.not_applicable or (effect.needs and effect.needs[0] not in known):
             if not present:
-                skipped.append({"effect": name, "reason": effect.not_applicable or effect.needs[1]})
+                skipped.append({"effect": name, "reason": effect.not_applicable or (effect.needs or ("", ""))[1]})
         elif n_facets < effect.min_facets[0]:
             if not present:
                 skipped.append({"effect": name, "reason": effect.min_facets[1]})
         elif not present:
+            assert effect.tried_as is not None, f"{name}: an applicable effect says how it is tried"
             tried.append(Candidate(name, name, dict(effect.tried_as), "add", effect.neutral))
         else:
             tried += [Candidate(v.label, name, v.params, v.change, v.neutral)

@@ -74,7 +74,7 @@ from helioflow.models.physics_fit import (
     with_uncertainty,
 )
 from helioflow.models.planning import canonical_correlation, image_information, plan
-from helioflow.models.uncertainty import end_state
+from helioflow.models.uncertainty import FitUncertainty, end_state
 from helioflow.physics.effects import FIT, REGISTRY, fitted_parameters
 from helioflow.physics.scene import Scene, dataset_scene, misplaced_flux
 
@@ -255,10 +255,10 @@ class Diagnosis:
         key = frozenset(labels)
         if key not in self.predictions:
             result = self.fitted(key)[1]
-            sun = [torch.cat((getattr(self.train, a), getattr(self.heldout, a)))
-                   for a in ("azimuth_deg", "elevation_deg")]
+            az, el = (torch.cat((getattr(self.train, a), getattr(self.heldout, a)))
+                      for a in ("azimuth_deg", "elevation_deg"))
             with torch.no_grad():
-                self.predictions[key] = self.scene.simulate(result.effects, result.tensors, *sun)
+                self.predictions[key] = self.scene.simulate(result.effects, result.tensors, az, el)
         return self.predictions[key]
 
     def noise(self, labels) -> NoiseModel:
@@ -330,9 +330,9 @@ class Diagnosis:
         alike = [s for s in subsets if rigid(s)]
         if rigid(best) or not alike:
             return best
-        alike = min(alike, key=self.error)
+        rigid_best = min(alike, key=self.error)
         tolerance = SWAP_NOISE * max(self.floor(best), NUMERICAL_FLOOR)
-        return alike if self.error(alike) <= self.error(best) + tolerance else best
+        return rigid_best if self.error(rigid_best) <= self.error(best) + tolerance else best
 
     def needed(self, label: str, rest) -> bool:
         """Whether candidate `label` is needed beside the candidates `rest`: dropping it costs a
@@ -363,15 +363,19 @@ class Diagnosis:
         if c.neutral is None or self.error(key) >= self.error(rest):
             return None
         fit = self.with_covariance(key)
-        u = None if fit is None else fit.uncertainty
+        if fit is None:
+            return None
+        u = _uncertainty(fit)
         # the change's own parameters: a tensor's entries (do nothing: 0) and the scalars it moves from a
         # number; one the model fits as well ("fit" in `neutral`: the camera's gain beside its blur) is no part of it
         neutral = {k: 0.0 if "[" in u.names[k] else c.neutral.get(u.names[k].split(".", 1)[1], 0.0)
-                   for k in (self._indices(fit, label) if fit is not None else [])}
+                   for k in self._indices(fit, label)}
         at = [k for k, v in neutral.items() if isinstance(v, (int, float)) and not isinstance(v, bool)]
         if not at:
             return None
         d = u.values[at] - np.array([float(neutral[k]) for k in at])
+        if u.statistical is None:
+            raise ValueError("this fit's uncertainty has no statistical covariance (a fresh fit's has one)")
         covariance = u.statistical[np.ix_(at, at)]  # not what unfound facets may do: that scales with the value
         dof = int(np.linalg.matrix_rank(covariance))
         if dof == 0:
@@ -477,12 +481,12 @@ class Diagnosis:
                 continue
             a, b = (self._indices(fit, n) for n in (label, other))
             if 0 < len(a) <= CORRELATED_BLOCK and 0 < len(b) <= CORRELATED_BLOCK:
-                return canonical_correlation(fit.uncertainty.covariance, a, b), key
+                return canonical_correlation(_uncertainty(fit).covariance, a, b), key
         return None
 
     def _indices(self, fit: FitResult, label: str) -> list[int]:
         prefix = self.candidate[label].effect + "."
-        return [k for k, n in enumerate(fit.uncertainty.names) if n.startswith(prefix)]
+        return [k for k, n in enumerate(_uncertainty(fit).names) if n.startswith(prefix)]
 
     def separating_images(self, key: frozenset, label: str, other: str) -> str:
         """The measurement that separates two confounded candidates, from the joint fit's covariance:
@@ -490,12 +494,14 @@ class Diagnosis:
         (models/planning.py, criterion "pair"), in words; where they leave it above SEPARATED, no
         calibration image does, and the effects' own words (`separating`) say what would."""
         fit = self.with_covariance(key)
+        if fit is None:
+            raise ValueError(f"the candidates {sorted(key)} have no fit with a covariance to separate them by")
         effects = (self.candidate[label].effect, self.candidate[other].effect)
         az, el = (torch.tensor([s[i] for s in SUN_GRID], dtype=torch.float32, device=self.train.images.device)
                   for i in (0, 1))
         _, masks = initial_tensors(fit.effects, self.scene.heliostat)
         state = end_state(self.scene, fit, az, el, self.train.scale, "shape", masks)
-        picks = plan(image_information(state, fit.fitted, masks, fit.uncertainty), fit.uncertainty,
+        picks = plan(image_information(state, fit.fitted, masks, _uncertainty(fit)), _uncertainty(fit),
                      SEPARATING_IMAGES, "pair", pair=effects)
         where = ", ".join(f"(azimuth {SUN_GRID[p.index][0]}, elevation {SUN_GRID[p.index][1]} deg)" for p in picks)
         after = -picks[-1].gain
@@ -684,6 +690,13 @@ def _lives(location: dict) -> str:
     return "Where it lives: " + "; ".join(parts) + "."
 
 
+def _uncertainty(fit: FitResult) -> FitUncertainty:
+    """The uncertainty of a fit that has one (physics_fit.with_uncertainty: `with_covariance`'s)."""
+    if fit.uncertainty is None:
+        raise ValueError("this fit has no uncertainty (physics_fit.with_uncertainty)")
+    return fit.uncertainty
+
+
 def _words(entry: dict) -> str:
     return entry["effect"].replace("_", " ")
 
@@ -692,9 +705,10 @@ def _cut_words(entry: dict) -> str:
     """How much a needed change cuts the held-out error, and, when it was named for its fitted values
     (`named_for`), how far the images put them from doing nothing (the Wald test) and whether the
     covariance determines them."""
-    cut, test = f"{entry['relative_reduction']:.0%}", entry.get("significance")
+    cut = f"{entry['relative_reduction']:.0%}"
     if entry.get("named_for") != "significance":
         return cut
+    test = entry["significance"]
     caveat = ("" if test["determined"] else "; the residual is structured, so the covariance does not determine "
               "its value: it may stand in for what the model lacks")
     return (f"{cut}, too little to count alone, but its fitted values stand away from doing nothing at "
@@ -783,7 +797,7 @@ def _measurements(ds, index: np.ndarray, scale: float, device: str | torch.devic
 
 
 def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict, output_json, figures: dict | None,
-                     ledger_path, device: str = "cpu", plant: str = "") -> dict:
+                     ledger_path, device: str | torch.device = "cpu", plant: str = "") -> dict:
     """The `diagnose` rule: diagnosis/{dataset}.json and its figures (keys of `figures`:
     signatures, ranking, residuals, location, ledger; None: none drawn).
 
@@ -838,8 +852,9 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
     at = torch.as_tensor(few)
     location = {"changes": chosen, "sun_position": by_sun_position(ds.azimuth_deg, ds.elevation_deg, over_noise),
                 "image": in_image(fit_scene, last, everything.images),
-                "mirror": on_mirror(fit_scene, final.effects, final.tensors, *(a[at.to(a.device)] for a in sun),
-                                    everything.images[at].to(device), over_noise[few] > EXPLAINED)}
+                "mirror": on_mirror(fit_scene, final.effects, final.tensors, sun[0][at.to(sun[0].device)],
+                                    sun[1][at.to(sun[1].device)], everything.images[at].to(device),
+                                    over_noise[few] > EXPLAINED)}
     ledger = update_ledger(ledger_path, str(ds.attrs.get("config_hash", Path(dataset_path).stem)), effects, before)
     result = {
         "dataset": ds.attrs.get("dataset", Path(dataset_path).stem),
@@ -872,7 +887,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
                                      "remaining_error": np.round(error_each, 5).tolist(),
                                      "noise_floor": np.round(floor_each, 5).tolist(),
                                      **_predicted_centroids(spots)}},
-        "uncertainty": {"changes": chosen, **final.uncertainty.as_json()},
+        "uncertainty": {"changes": chosen, **_uncertainty(final).as_json()},
         "location": location,
         "verdict": (heldout["note"] + " " if heldout["note"] else "") + verdict(ranking, summary, remaining, location),
         "ledger": ledger,

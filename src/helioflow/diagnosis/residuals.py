@@ -19,6 +19,8 @@ position, in the image, and on the mirror.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch
 from scipy.optimize import lsq_linear
@@ -39,9 +41,10 @@ def by_sun_position(azimuth_deg: np.ndarray, elevation_deg: np.ndarray, over_noi
     """Error over noise (N,) per image, averaged over thirds of the images by elevation and by
     azimuth: {"elevation_deg": [...], "azimuth_deg": [...]}, each part {range, images, over_noise},
     and `where`: the third of each that carries most, in words."""
-    out, words = {}, []
+    out: dict[str, Any] = {}
+    words = []
     for name, angle in (("elevation_deg", elevation_deg), ("azimuth_deg", azimuth_deg)):
-        parts = []
+        parts: list[dict[str, Any]] = []
         for index in np.array_split(np.argsort(angle), min(3, len(angle))):
             parts.append({"range": [round(float(angle[index].min()), 2), round(float(angle[index].max()), 2)],
                           "images": len(index), "over_noise": round(float(over_noise[index].mean()), 3)})
@@ -68,7 +71,7 @@ def in_image(scene: Scene, model: Tensor, measured: Tensor) -> dict:
     right = u[None, None, :] > c[:, 0, None, None]
     core = p >= CORE_FRACTION * p.amax((-2, -1), keepdim=True)
     sides = {"above": above, "below": ~above, "right": right, "left": ~right, "core": core, "halo": ~core}
-    out = {k: round(float((r * mask).sum((-2, -1)).mean()), 4) for k, mask in sides.items()}
+    out: dict[str, Any] = {k: round(float((r * mask).sum((-2, -1)).mean()), 4) for k, mask in sides.items()}
     gains, losses = max(out, key=lambda k: out[k]), min(out, key=lambda k: out[k])
     place = {"above": "above the spot's centre", "below": "below the spot's centre", "right": "right of the centre",
              "left": "left of the centre", "core": "in the spot's core", "halo": "in its halo"}
@@ -116,7 +119,8 @@ def on_mirror(scene: Scene, effects: dict, tensors: dict, azimuth_deg: Tensor, e
     meas = meas / meas.sum((-2, -1), keepdim=True).clamp_min(1e-30) - background / total  # the light to place
     affected = np.asarray(affected, bool)
     layout = [_region(h, f, i, j, regions) for f in range(h.n_facets) for i in range(regions) for j in range(regions)]
-    out = {"regions": layout, "pattern": {}, "facets": {}, "weight": {}, "affected_images": int(affected.sum())}
+    out: dict[str, Any] = {"regions": layout, "pattern": {}, "facets": {}, "weight": {},
+                           "affected_images": int(affected.sum())}
     if not affected.any():
         affected = np.ones(len(meas), bool)
     for name, select in (("affected", affected), ("others", ~affected)):

@@ -35,6 +35,7 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -48,6 +49,7 @@ from helioflow.errors import ConfigError, DataError
 from helioflow.field.figure import plot_field_maps
 from helioflow.field.metrics import map_metrics, mean_metrics, spot_metrics
 from helioflow.io import write_text_atomic
+from helioflow.models.base import SpotModel
 from helioflow.models.registry import load_model
 from helioflow.physics.carry import carry_spot, commanded_normal, core_spread, equivalent_sun
 from helioflow.physics.effects import FIT, REGISTRY, resolve
@@ -79,7 +81,7 @@ def aim_points(receiver: Target, aim: dict, n: int) -> Tensor:
 def without_fit(effects: dict) -> dict:
     """An effect list with every "fit" value replaced by the registry default (a per-facet tensor
     marked "fit" is left out: the heliostat's own values, zero for an ideal heliostat)."""
-    out = {}
+    out: dict[str, dict] = {}
     for name, params in (effects or {}).items():
         out[name] = {}
         for key, value in (params or {}).items():
@@ -184,7 +186,7 @@ class Calibration:
         train_sun: (K, 3) unit sun vectors of the dataset's train split.
     """
 
-    model: torch.nn.Module
+    model: SpotModel
     scale: float
     target: Target
     world_effects: dict
@@ -315,8 +317,8 @@ def measured_spots(
     learned_w = learned.sum((-2, -1)) * cal.target.pixel_area
     unshaded = 1 - ideal.budget["shaded"][:, k] / ideal.budget["incident"][:, k]
     spots = {
-        "truth": truth.spots[:, j],
-        "ideal": ideal.spots[:, j],
+        "truth": truth.asked_spots()[:, j],
+        "ideal": ideal.asked_spots()[:, j],
         "hybrid": _carry(learned, cal.target, scene, k, suns, optics["model"]) * model_factor[:, None, None],
         "carried_truth": _carry(true_target, cal.target, scene, k, suns, optics["model"])
         * truth_factor[:, None, None],
@@ -365,21 +367,22 @@ def compose_field(
         scene, without_fit(spec["model_effects"]), [h.ideal() for h in scene.true], dni, cells, device
     )
     optics = {"world": world_optics, "model": model_optics}
-    spots, details = {s: [] for s in SPOTS}, []
+    collected: dict[str, list[Tensor]] = {s: [] for s in SPOTS}
+    details = []
     for j, (k, model_path, dataset_path) in enumerate(zip(scene.measured, model_paths, dataset_paths)):
         cal = load_calibration(scene.names[k], model_path, dataset_path, device)
         heliostat_spots, heliostat_details = measured_spots(scene, k, j, cal, truth, ideal, optics, spec)
         for s in SPOTS:
-            spots[s].append(heliostat_spots[s])
+            collected[s].append(heliostat_spots[s])
         details.append(heliostat_details)
-    spots = {s: torch.stack(v, 1) for s, v in spots.items()}  # (S, M, H, W)
-    maps = {
+    stacked = {s: torch.stack(v, 1) for s, v in collected.items()}  # (S, M, H, W)
+    flux = {
         "truth": truth.flux,
         "ideal": ideal.flux,
-        "hybrid": (ideal.flux - ideal.spots.sum(1) + spots["hybrid"].sum(1)).clamp_min(0.0),
+        "hybrid": (ideal.flux - ideal.asked_spots().sum(1) + stacked["hybrid"].sum(1)).clamp_min(0.0),
     }
-    maps = {m: v.cpu().numpy() for m, v in maps.items()}
-    spots = {s: v.cpu().numpy() for s, v in spots.items()}
+    maps = {m: v.cpu().numpy() for m, v in flux.items()}
+    spots = {s: v.cpu().numpy() for s, v in stacked.items()}
     metrics = _metrics(scene, spec, truth, ideal, maps, spots, details)
     metrics["seconds"] = round(time.perf_counter() - start, 2)
     write_flux(flux_path, scene, spec, maps, spots, details, {"truth": truth, "ideal": ideal})
@@ -421,11 +424,11 @@ def _metrics(
             ideal_reflected.sum(-1) - ideal_reflected[:, scene.measured].sum(-1) + torch.as_tensor(learned)
         ).tolist(),
     }
-    points = {}
+    points: dict[str, dict[str, Any]] = {}
     for i, point in enumerate(scene.points):
         t = maps["truth"][i]
         on = float(t.sum()) * pixel[0] * pixel[1]
-        row = {
+        row: dict[str, Any] = {
             "sun_deg": [spec["sun"][point]["azimuth_deg"], spec["sun"][point]["elevation_deg"]],
             "truth": {
                 "peak_flux_kw_m2": float(t.max()) / 1e3,
@@ -445,7 +448,7 @@ def _metrics(
         }
         points[point] = row
     per_heliostat = [h for row in points.values() for h in row["measured"].values()]
-    summary = {m: mean_metrics([row[m] for row in points.values()]) for m in MAPS[1:]}
+    summary: dict[str, Any] = {m: mean_metrics([row[m] for row in points.values()]) for m in MAPS[1:]}
     summary["measured_heliostats"] = {s: mean_metrics([h[s] for h in per_heliostat]) for s in SPOTS[1:]}
     return {
         "network": spec["network"],

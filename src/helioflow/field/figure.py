@@ -53,12 +53,11 @@ def plot_field_maps(
         diffs = {m: images[m] - images[reference] for m in others}
         vmax = max(float(im.max()) for im in images.values()) or 1.0
         limit = max(float(np.abs(d).max()) for d in diffs.values()) or 1.0
-        panels = [(col, m, images[m], {"cmap": "inferno", "vmin": 0, "vmax": vmax}) for col, m in enumerate(names)]
-        panels += [(first_diff + i, m, diffs[m], {"cmap": "RdBu_r", "vmin": -limit, "vmax": limit})
-                   for i, m in enumerate(others)]
-        for col, name, image, style in panels:
+        panels = [(col, m, images[m], "inferno", 0.0, vmax) for col, m in enumerate(names)]
+        panels += [(first_diff + i, m, diffs[m], "RdBu_r", -limit, limit) for i, m in enumerate(others)]
+        for col, name, image, cmap, low, high in panels:
             ax = fig.add_subplot(grid[row, col])
-            shown = ax.imshow(image, extent=extent, **style)
+            shown = ax.imshow(image, extent=extent, cmap=cmap, vmin=low, vmax=high)
             ax.tick_params(labelsize=6)
             if col < n_maps:
                 ax.set_title(name, fontsize=8)

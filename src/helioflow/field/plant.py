@@ -39,6 +39,7 @@ import os
 import time
 from collections import Counter
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import torch
@@ -57,6 +58,9 @@ from helioflow.physics.effects import REGISTRY, TENSOR_EFFECTS
 from helioflow.physics.field import BUDGET_TERMS, FieldFlux, flat_receiver
 from helioflow.physics.heliostat import Heliostat
 from helioflow.physics.scene import effective_tensors, with_tensors
+
+if TYPE_CHECKING:
+    from helioflow.models.physical import RaytraceModel
 
 log = logging.getLogger(__name__)
 
@@ -90,7 +94,8 @@ def calibrated_heliostat(name: str, model_path: str | os.PathLike, design: Helio
     """(the heliostat as its physics model's fit has it (float64), its fitted slope error (rad) or None
     where the model fits none); DataError naming the file when it holds no physics model or one
     fitted on a heliostat elsewhere than `design`."""
-    model, info = load_model(model_path)
+    loaded, info = load_model(model_path)
+    model = cast("RaytraceModel", loaded)  # a physics model, unless the check next finds no fit
     fitted = getattr(model, "fitted", None)
     if fitted is None or model.heliostat is None:
         raise DataError(f"{model_path}: a {info['network']} model has no fitted heliostat; the plant's flux map "
@@ -177,18 +182,19 @@ def _metrics(scene: Scene, settings: dict, traced: dict[str, FieldFlux], left_ou
     receiver = scene.receiver
     pixel, area = receiver.pixel_size, receiver.pixel_area
     maps = {m: traced[m].flux.cpu().numpy() for m in MAPS}
-    spots = {m: traced[m].spots.cpu().numpy() if traced[m].spots is not None else None for m in MAPS}
-    rows = {}
+    spots = {m: traced[m].asked_spots().cpu().numpy() for m in MAPS} if traced["ideal"].spots is not None else None
+    rows: dict[str, dict[str, Any]] = {}
     for i, point in enumerate(scene.points):
         c = maps["calibrated"][i]
         on = float(c.sum()) * area
         reflected = {m: float(traced[m].budget["reflected"][i].sum()) for m in MAPS}
+        row: dict[str, Any]
         row = {"sun_deg": [settings["sun"][point]["azimuth_deg"], settings["sun"][point]["elevation_deg"]],
                "calibrated": {"peak_flux_kw_m2": float(c.max()) / 1e3, "power_on_receiver_kw": on / 1e3,
                               "intercept": on / reflected["calibrated"]},
                "ideal": map_metrics(maps["ideal"][i], c, pixel, reflected["ideal"], on / reflected["calibrated"]),
                "heliostats": {}}
-        if spots["ideal"] is not None:
+        if spots is not None:
             where = {m: _spot_place(spots[m][i], receiver, area) for m in MAPS}
             for j, k in enumerate(scene.measured):
                 (ci, pi), (cc, pc) = (tuple(v[j] for v in where[m]) for m in MAPS)
@@ -246,7 +252,7 @@ def write_plant_flux(path: str | os.PathLike, scene: Scene, spec: dict, traced: 
         "spots/names": np.array([scene.names[k] for k in scene.measured], dtype=str),
     })
     if scene.measured:
-        arrays.update({f"spots/{m}": traced[m].spots.cpu().numpy().astype(np.float32) for m in MAPS})
+        arrays.update({f"spots/{m}": traced[m].asked_spots().cpu().numpy().astype(np.float32) for m in MAPS})
     arrays.update({f"budget/{m}/{term}": traced[m].budget[term].cpu().numpy() for m in MAPS for term in BUDGET_TERMS})
     r = scene.receiver
     attrs = {"plant": spec["plant"], "receiver_center_m": r.center.tolist(), "receiver_normal": r.normal.tolist(),

@@ -10,7 +10,6 @@ from __future__ import annotations
 import os
 from abc import ABCMeta, abstractmethod
 from dataclasses import dataclass
-from typing import ClassVar
 
 import torch
 from torch import Tensor, nn
@@ -64,7 +63,8 @@ class SpotModel(nn.Module, metaclass=ABCMeta):
     name: str = "model"
     controllable: bool = True
     uses_loop: bool = True  # False: `prepare` does all the fitting and the loop runs no steps
-    curve: ClassVar[list[dict[str, float]]] = []  # a model that fits itself in `prepare` puts its curve here
+    curve: list[dict[str, float]] = []  # a model that fits itself in `prepare` puts its curve here
+    image_shape: tuple[int, int]  # set by every subclass's __init__
     device = torch.device("cpu")  # where the model computes (`to_device`)
 
     def to_device(self, device: torch.device) -> SpotModel:

@@ -66,7 +66,7 @@ class ConditionalGAN(SpotModel):
     def __init__(self, config: CganConfig, image_shape: tuple[int, int]):
         super().__init__()
         self.config = config
-        self.image_shape = tuple(image_shape)
+        self.image_shape = (image_shape[0], image_shape[1])
         self.netG = Generator(self.image_shape, config.latent, config.features, config.max_mult,
                               cond_dim=CONDITION_DIM, cond_embed=config.cond_embed)
         self.netD = Discriminator(self.image_shape, config.features, config.max_mult, cond_channels=CONDITION_DIM)

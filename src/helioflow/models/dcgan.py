@@ -137,6 +137,7 @@ class Discriminator(nn.Module):
         """(N, 1, H, W) images [+ (N, C) condition] -> (N,) logits."""
         if self.cond_channels:
             n, _, h, w = images.shape
+            assert condition is not None, "a conditioned discriminator needs the condition"
             images = torch.cat((images, condition[:, :, None, None].expand(n, self.cond_channels, h, w)), dim=1)
         return self.main(images).flatten()
 
@@ -169,6 +170,7 @@ class Generator(nn.Module):
         layers += [out, nn.Sigmoid()]
         self.main = nn.Sequential(*layers)
         self.apply(weights_init)
+        assert out.bias is not None  # bias=True
         nn.init.constant_(out.bias, OUTPUT_BIAS)  # start near the black background, not at 0.5
 
     def forward(self, z: Tensor, condition: Tensor | None = None) -> Tensor:
@@ -239,7 +241,7 @@ class DCGAN(SpotModel):
     def __init__(self, config: GanConfig, image_shape: tuple[int, int]):
         super().__init__()
         self.config = config
-        self.image_shape = tuple(image_shape)
+        self.image_shape = (image_shape[0], image_shape[1])
         self.netG = Generator(self.image_shape, config.latent, config.features, config.max_mult)
         self.netD = Discriminator(self.image_shape, config.features, config.max_mult)
 

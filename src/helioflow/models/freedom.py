@@ -96,7 +96,7 @@ def choose_freedom(levels: dict[str, dict], data: Measurements,
             predicted = predict(start, data.azimuth_deg[out:out + 1], data.elevation_deg[out:out + 1])
             scores[level].append(float(misplaced_flux(predicted, data.images[out:out + 1])[0]))
     mean = {k: float(np.mean(v)) for k, v in scores.items()}
-    best = min(mean, key=mean.get)
+    best = min(mean, key=lambda k: mean[k])
     bar = mean[best] + _standard_error(scores[best])
     chosen = next(k for k in levels if mean[k] <= bar)
     reason = (f"chosen by leave-one-out over the {n} training images: held-out misplaced flux "

@@ -288,11 +288,15 @@ class SpotNeRF(SpotModel):
 
     name = "nerf"
     controllable = True
+    beam: Tensor  # buffers (register_buffer in __init__)
+    ray_offsets: Tensor
+    levels: Tensor
+    steps_done: Tensor
 
     def __init__(self, config: NerfConfig, image_shape: tuple[int, int]):
         super().__init__()
         self.config = config
-        self.image_shape = tuple(int(s) for s in image_shape)
+        self.image_shape = (int(image_shape[0]), int(image_shape[1]))
         f64 = torch.float64
         heliostat = torch.tensor(config.heliostat_position_m, dtype=f64)
         aim = torch.tensor(config.aim_point_m, dtype=f64)

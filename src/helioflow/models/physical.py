@@ -172,6 +172,7 @@ class RaytraceModel(SpotModel):
         attrs = {"target_center_m": c.aim_point_m, "target_normal": c.target_normal, "target_size_m": c.target_size_m,
                  "dni_w_m2": c.dni_w_m2, "trace": c.dataset_trace,
                  **({} if c.target_aim_m is None else {"aim_point_m": c.target_aim_m})}
+        assert self.heliostat is not None, "a physics model's scene needs its heliostat (`prepare`)"
         return dataset_scene(self.heliostat, attrs, self.image_shape, c.cells_per_side, c.fit_rays, fitting)
 
     def prepare(self, data: TrainingData, checkpoint_path: str | os.PathLike | None = None) -> None:
@@ -255,6 +256,7 @@ class DrtModel(RaytraceModel):
     (config `freedom`, models/freedom.py)."""
 
     name = "drt"
+    config: DrtConfig
 
     def __init__(self, config: DrtConfig, image_shape: tuple[int, int]):
         super().__init__(config, image_shape)

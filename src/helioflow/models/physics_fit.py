@@ -398,17 +398,21 @@ def blur_levels(coarse_px: float) -> tuple[float, ...]:
 class _Fitter:
     """The three fitting methods over one set of measurements."""
 
-    def __init__(self, scene: Scene, data: Measurements, target: Tensor, settings: FitSettings, linear: list):
+    def __init__(self, scene: Scene | LinearisedScene, data: Measurements, target: Tensor, settings: FitSettings,
+                 linear: list):
         self.scene, self.data, self.target, self.settings, self.linear = scene, data, target, settings, linear
 
     def traced(self, effects: dict, tensors: dict, facets: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """Images (N, H, W) and the flux beside them (N,) (zeros unless the loss is "shape", the only
         one that needs it), both divided by the measurements' scale, of the whole heliostat or of
         `facets` ((K,) long) alone, with the linear scalars neutral. Both add up over facets."""
-        shape = self.settings.loss == "shape"
-        traced = self.scene.simulate(self._unit_linear(effects), tensors, self.data.azimuth_deg,
-                                     self.data.elevation_deg, with_lost=shape, facets=facets)
-        images, lost = traced if shape else (traced, traced.new_zeros(len(traced)))
+        effects = self._unit_linear(effects)
+        sun = self.data.azimuth_deg, self.data.elevation_deg
+        if self.settings.loss == "shape":
+            images, lost = self.scene.simulate(effects, tensors, *sun, with_lost=True, facets=facets)
+        else:
+            images = self.scene.simulate(effects, tensors, *sun, facets=facets)
+            lost = images.new_zeros(len(images))
         return images / self.data.scale, lost / self.data.scale
 
     def predict(self, effects: dict, tensors: dict) -> Tensor:

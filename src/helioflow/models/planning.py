@@ -31,6 +31,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from datetime import datetime, timedelta
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 import torch
@@ -44,6 +45,9 @@ from helioflow.models.uncertainty import (
     parameters,
     predicted_spread,
 )
+
+if TYPE_CHECKING:
+    from helioflow.models.physical import RaytraceModel
 
 CRITERIA = ("d_optimal", "targets", "pair", "predictions")
 CHUNK = 16  # candidate images whose Jacobian is built at once (memory: CHUNK x pixels x parameters)
@@ -66,6 +70,9 @@ def image_information(state: _State, fitted: list[tuple[str, str]], masks: dict[
     residual (times the misfit where the residual is larger: the covariance's own scale), at least
     uncertainty.NOISE_FLOOR of the peak: no image is worth infinitely much."""
     names, noise = uncertainty.names, uncertainty.noise
+    if noise is None:
+        raise ValueError("the uncertainty holds no noise model (a model file written before it): nothing to weigh "
+                         "new images with")
     scale = max(1.0, uncertainty.misfit)  # the covariance's own noise: the residual's, where it exceeds the noise
     out = []
     for start in range(0, len(state.azimuth_deg), CHUNK):
@@ -183,13 +190,14 @@ def plan_measurements(model_path, dataset_path, settings: dict, output=None, dev
         raise DataError(f"{model_path}: a {info['network']} model without fitted parameters and their uncertainty "
                         "(a physics model - raytrace or drt - trained by this version of helioflow) has nothing to "
                         "plan for")
+    model = cast("RaytraceModel", model)  # a physics model: it has a fit and its uncertainty
     ds = read_dataset(dataset_path)
     times, azimuth, elevation, source = _candidates(settings, ds.attrs, dataset_path)
     scene = model.scene()
     _, masks = initial_tensors(fit.effects, scene.heliostat)
     loss = "shape" if model.config.per_image_normalised else "absolute"
-    sun = (torch.as_tensor(a, dtype=torch.float32, device=model.device) for a in (azimuth, elevation))
-    state = end_state(scene, fit, *sun, model.scale, loss, masks)
+    az, el = (torch.as_tensor(a, dtype=torch.float32, device=model.device) for a in (azimuth, elevation))
+    state = end_state(scene, fit, az, el, model.scale, loss, masks)
     information = image_information(state, fit.fitted, masks, fit.uncertainty)
     pair = tuple(settings["pair"]) if settings.get("pair") else None
     criterion = settings.get("criterion", "d_optimal")
@@ -197,9 +205,9 @@ def plan_measurements(model_path, dataset_path, settings: dict, output=None, dev
     if criterion == "predictions":  # the centroids at `predict_at`, or at the candidates themselves
         at = np.asarray(settings["predict_at"], dtype=float).reshape(-1, 2) if settings.get("predict_at") else \
             np.stack((azimuth, elevation), -1)
-        where = (torch.as_tensor(at[:, i], dtype=torch.float32, device=model.device) for i in (0, 1))
-        spread = predicted_spread(end_state(scene, fit, *where, model.scale, loss, masks), fit.fitted, masks,
-                                  fit.uncertainty)
+        where_az, where_el = (torch.as_tensor(at[:, i], dtype=torch.float32, device=model.device) for i in (0, 1))
+        spread = predicted_spread(end_state(scene, fit, where_az, where_el, model.scale, loss, masks), fit.fitted,
+                                  masks, fit.uncertainty)
         predictions = spread["centroid_jacobian"].flatten(0, 1)
     picks = plan(information, fit.uncertainty, int(settings.get("images", 8)), criterion, settings.get("targets"),
                  pair, predictions)

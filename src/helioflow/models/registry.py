@@ -33,7 +33,7 @@ LOOP_KEYS = ("steps", "batch_size", "checkpoint_every")
 MODEL_FORMAT = "helioflow.model/1"
 
 
-def network_classes(network: str) -> tuple[type, type]:
+def network_classes(network: str) -> tuple[type, type[SpotModel]]:
     """(config dataclass, model class) of a network name."""
     if network not in NETWORKS:
         raise ConfigError(f"unknown network {network!r}; allowed: {', '.join(NETWORKS)}")
@@ -102,7 +102,8 @@ def dataset_geometry(network: str, attrs: dict) -> dict:
 
 def train_network(network: str, settings: dict, dataset_path: str | os.PathLike, model_path: str | os.PathLike,
                   curve_csv: str | os.PathLike, curve_png: str | os.PathLike, seed: int,
-                  train_images: int | None = None, progress: bool = True, device: str = "cpu") -> SpotModel:
+                  train_images: int | None = None, progress: bool = True,
+                  device: str | torch.device = "cpu") -> SpotModel:
     """The `train` rule: fit one network on a dataset's train split and write the model file.
 
     The checkpoints `<model_path>.ckpt` (the training loop's) and `<model_path>.fit.ckpt` (the fit of

@@ -268,7 +268,7 @@ class _State:
         b = self.offset if offset is None else offset
         return a * images + b, a * lost
 
-    def compared(self, images: Tensor, lost: Tensor) -> Tensor:
+    def compared(self, images: Tensor, lost: Tensor | None) -> Tensor:
         """A prediction as the loss compares it (physics_fit: `normalised`)."""
         return normalised(images, self.loss, 1.0, lost if self.loss == "shape" else None)
 
@@ -361,9 +361,11 @@ def perturbed(state: _State, params: list[_Parameter]) -> Iterator[tuple[int, fl
         else:  # linear: the prediction is linear in it
             typical = 1e-3 if p.kind == "scale" else float(base[0].mean()) * state.scale
             step = RELATIVE_STEP * max(abs(p.value), typical)
-            moves = [{"gain": p.value + s * step} if p.kind == "scale"
-                     else {"offset": (p.value + s * step) / state.scale} for s in (1.0, -1.0)]
-            yield k, step, state.prediction(*base, **moves[0]), state.prediction(*base, **moves[1])
+            if p.kind == "scale":
+                plus, minus = (state.prediction(*base, gain=p.value + s * step) for s in (1.0, -1.0))
+            else:
+                plus, minus = (state.prediction(*base, offset=(p.value + s * step) / state.scale) for s in (1.0, -1.0))
+            yield k, step, plus, minus
 
 
 def _within_bounds(p: _Parameter) -> tuple[float, float]:
@@ -410,7 +412,8 @@ def fit_uncertainty(state: _State, fitted: list[tuple[str, str]], masks: dict[st
     h_plus = _pseudo_inverse(h.numpy())
     misfit = float((residual**2).sum() / variance.sum().clamp_min(1e-300))
     whitened = residual / std.reshape(measured.shape)
-    gram = correlated_gram(weighted, tuple(measured.shape), ring_spectrum(whitened, unit_mean=max(1.0, misfit)))
+    n, rows, cols = measured.shape
+    gram = correlated_gram(weighted, (n, rows, cols), ring_spectrum(whitened, unit_mean=max(1.0, misfit)))
     white_gram = (weighted.T @ weighted).double().numpy() * max(1.0, misfit)
     white = np.diag(white_gram)
     gain = np.divide(np.diag(gram), white, out=np.ones_like(white), where=white > 0)
@@ -448,17 +451,18 @@ def _systematic(h: np.ndarray, state: _State, masks: dict[str, Tensor], off: set
     do to the rest: their entries may be off by as much as a typical entry of their tensor (its
     RMS over the heliostat), and every other entry moves with them as the least-squares optimum
     does, by -H_dd^+ H_du (d: the other entries, u: theirs)."""
-    facet, typical = [], []
+    facets: list[int] = []
+    typicals: list[float] = []
     for key, tensor in state.tensors.items():
         if not bool(masks[key].any()):
             continue
         free = masks[key].flatten().nonzero()[:, 0]
         per_facet = key != "tracking"
         index = np.unravel_index(free.cpu().numpy(), tuple(tensor.shape))[0] if per_facet else np.full(len(free), -1)
-        facet.extend(index.tolist())
-        typical.extend([float(tensor.detach().double().pow(2).mean().sqrt())] * len(free))
-    facet = np.array(facet + [-1] * (len(h) - len(facet)))
-    typical = np.array(typical + [0.0] * (len(h) - len(typical)))
+        facets.extend(index.tolist())
+        typicals.extend([float(tensor.detach().double().pow(2).mean().sqrt())] * len(free))
+    facet = np.array(facets + [-1] * (len(h) - len(facets)))
+    typical = np.array(typicals + [0.0] * (len(h) - len(typicals)))
     u = np.isin(facet, sorted(off))
     out = np.zeros_like(h)
     if not u.any():
@@ -605,6 +609,7 @@ def predicted_spread(state: _State, fitted: list[tuple[str, str]], masks: dict[s
     if [p.name for p in params] != uncertainty.names:
         raise ValueError("the uncertainty was computed for other parameters than this fit's")
     slant = float((state.scene.target.center - state.scene.heliostat.position).norm())
+
     def centroid(images: Tensor) -> Tensor:  # (N, 2) mrad
         return state.scene.target.centroid(images.float()).double() / slant * 1e3
 
@@ -620,13 +625,13 @@ def predicted_spread(state: _State, fitted: list[tuple[str, str]], masks: dict[s
     for j, step, plus, minus in perturbed(state, [params[k] for k in rest]) if rest else ():
         k = rest[j]
         c_columns[..., k] = (centroid(plus[0]) - centroid(minus[0])) / (2.0 * step)
-        if with_flux:
+        if f_columns is not None:  # with_flux
             f_columns[:, k] = ((plus[0] - minus[0]) / (2.0 * step)).flatten().float()
     cov = torch.as_tensor(uncertainty.covariance)
     out = {"centroid_mrad": centroid(images),
            "centroid_sigma_mrad": torch.einsum("nap,pq,naq->na", c_columns, cov, c_columns).clamp_min(0).sqrt(),
            "centroid_jacobian": c_columns}
-    if with_flux:
+    if f_columns is not None:  # with_flux
         values, vectors = torch.linalg.eigh(cov)
         root = (vectors * values.clamp_min(0).sqrt()).float()  # cov = root root^T
         out["flux"] = images

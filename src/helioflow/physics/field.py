@@ -56,6 +56,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 import torch
@@ -180,8 +181,8 @@ def _sample(heliostats: Sequence[Heliostat], cells_per_side: int) -> tuple[Tenso
         group = [h for h, fh in zip(heliostats, focal) if fh == f]
         index = [i for i, fh in enumerate(focal) if fh == f]
         names = ("facet_translation", "facet_size", "facet_normal", "control_heights", "canting_error")
-        merged = replace(first, facet_focal_length=f,
-                         **{name: torch.cat([getattr(h, name) for h in group]) for name in names})
+        merged_tensors: dict[str, Any] = {name: torch.cat([getattr(h, name) for h in group]) for name in names}
+        merged = replace(first, facet_focal_length=f, **merged_tensors)
         s = sample_surface(merged, cells_per_side)
         points[index] = s.points.reshape(len(group), n_points, 3)
         normals[index] = s.normals.reshape(len(group), n_points, 3)
@@ -203,6 +204,12 @@ class FieldFlux:
     flux: Tensor
     budget: dict[str, Tensor]
     spots: Tensor | None = None
+
+    def asked_spots(self) -> Tensor:
+        """`spots` of a trace that asked for them (ValueError for one that did not)."""
+        if self.spots is None:
+            raise ValueError("the field was traced without the heliostats' own spots (field_flux(spots=...))")
+        return self.spots
 
     def totals(self) -> dict[str, Tensor]:
         """{term: (S,) W}: the budget summed over the heliostats."""
@@ -284,7 +291,8 @@ def _trace_sun(field, receiver, sun, aim, optics, blocking_shading, neighbours, 
     n = len(field)
     rot = orientations(field, sun, aim)  # (N, 3, 3)
     rects = _facet_rectangles(field, rot)
-    shade_idx = block_idx = None
+    shade_idx: tuple[Tensor, Tensor] | None = None
+    block_idx: tuple[Tensor, Tensor] | None = None
     distance = (aim - field.position).norm(dim=-1)
     if blocking_shading and n > 1:
         k = min(neighbours, n - 1)
@@ -300,8 +308,8 @@ def _trace_sun(field, receiver, sun, aim, optics, blocking_shading, neighbours, 
     order = torch.argsort(distance)
     for start in range(0, n, chunk):
         rows = order[start:start + chunk]
-        candidates = None if shade_idx is None else tuple((i[rows], v[rows])
-                                                           for i, v in (shade_idx, block_idx))
+        candidates = None if shade_idx is None or block_idx is None else tuple((i[rows], v[rows])
+                                                                               for i, v in (shade_idx, block_idx))
         spots, terms = _trace_chunk(field, rows, rot, rects, receiver, sun, aim, optics, candidates)
         image = image + spots.total()
         k, j = torch.nonzero(wanted[:, None] == rows[None, :], as_tuple=True)
@@ -360,10 +368,10 @@ def _candidates(origin: Tensor, direction: Tensor, radius: Tensor, widening: Ten
     perp = reach_max + np.maximum(centre + spacing / 2, 0.0) * grow[row]  # the bundle's radius at the ball's far end
     found = cKDTree(points).query_ball_point(points[row] + centre[:, None] * line[row],
                                              r=np.hypot(perp, spacing / 2) * (1 + 1e-9), return_sorted=False)
-    near = [set() for _ in range(n)]
+    near_sets: list[set[int]] = [set() for _ in range(n)]
     for h, hits in zip(row.tolist(), found):
-        near[h].update(hits)
-    near = [list(s) for s in near]
+        near_sets[h].update(hits)
+    near = [list(s) for s in near_sets]
     index = torch.zeros(n, k, dtype=torch.long, device=origin.device)
     valid = torch.zeros(n, k, dtype=torch.bool, device=origin.device)
     order = sorted(range(n), key=lambda h: len(near[h]))
@@ -532,7 +540,7 @@ def _spots(points: Tensor, ray: Tensor, power: Tensor, receiver: Target, optics:
     reach = radius * path / unit[:, 0].abs().clamp_min(1e-6)  # (B,) m
     lit = power > 0
     (x0, kx, nx), (y0, ky, ny) = _window(x, lit, reach / pw, cols), _window(y, lit, reach / ph, rows)
-    size = int(max(nx.max(), ny.max()))  # the chunk's grid: as many cells as its widest window needs
+    size = int(torch.maximum(nx.max(), ny.max()))  # the chunk's grid: as many cells as its widest window needs
     # Deposit: padded grid coordinates, (1, 1) = centre of the first cell.
     cells = deposit((x - x0) / kx + 0.5, (y - y0) / ky + 0.5, power, (size, size))  # (B, C, C)
     cell = torch.cat((kx * pw, ky * ph), -1)  # (B, 2) cell width, height (m)

@@ -112,7 +112,8 @@ def wgs84_to_enu(lat_deg, lon_deg, alt_m, ref_lat_deg: float, ref_lon_deg: float
     return np.stack((east, north, up), axis=-1)
 
 
-def _ecef(lat_deg: np.ndarray, lon_deg: np.ndarray, alt_m: np.ndarray) -> np.ndarray:
+def _ecef(lat_deg: np.ndarray | np.floating, lon_deg: np.ndarray | np.floating,
+          alt_m: np.ndarray | np.floating) -> np.ndarray:
     lat, lon = np.radians(lat_deg), np.radians(lon_deg)
     n = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
     return np.stack(

@@ -18,6 +18,7 @@ Mount types (rotation applied to the rest frame, first joint outermost):
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 import torch
@@ -87,7 +88,8 @@ class Heliostat:
 
     def to(self, device, dtype=torch.float32) -> Heliostat:
         """The same heliostat with its tensors on `device` in `dtype`."""
-        fields = {k: v.to(device=device, dtype=dtype) for k, v in vars(self).items() if isinstance(v, Tensor)}
+        fields: dict[str, Any] = {k: v.to(device=device, dtype=dtype) for k, v in vars(self).items()
+                                  if isinstance(v, Tensor)}
         return replace(self, **fields)
 
 

@@ -37,6 +37,7 @@ from helioflow.physics.raytrace import (
     padded_canvas,
     splat_footprints,
 )
+from helioflow.physics.sun import SunShape
 from helioflow.physics.target import Target
 
 FD_STEP = 0.05  # central-difference step of the derivatives (mrad, mrad, mm); the hits are linear
@@ -104,7 +105,7 @@ class LinearisedTrace:
                                                 self.cells_per_side), -1)
                 moved = moved + torch.einsum(f"sfpdk,{each}fpk->sfpd", derivative[:, index], local.flatten(-3, -2))
         n_sun = moved.shape[0]
-        factor = optics.dni * optics.reflectivity
+        factor: float | Tensor = optics.dni * optics.reflectivity
         if optics.transmittance is not None:
             factor = factor * optics.transmittance(torch.tensor(self.distance, dtype=moved.dtype, device=moved.device))
         power = self.power * factor
@@ -160,7 +161,8 @@ def linearise(heliostat: Heliostat, target: Target, azimuth: Tensor, elevation: 
                 samples = replace(samples, points=samples.points + step * 1e-3 * axes[:, :, 2])
             else:
                 samples = replace(samples, normals=normalize(samples.normals - step * 1e-3 * axes[:, :, local - 1]))
-        rays = _project(moved, samples, sun, t64, t64.aim_point, Optics(sun=None, dni=1.0))
+        optics = Optics(sun=SunShape("point"), dni=1.0)  # _project reads no sun shape
+        rays = _project(moved, samples, sun, t64, t64.aim_point, optics)
         col, row, power, unit, path = central_hits(rays, canvas)
         shape = (len(sun), n_facets, -1)
         return torch.stack((col, row), -1).reshape(*shape, 2), power.reshape(shape), unit, path

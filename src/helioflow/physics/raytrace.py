@@ -49,6 +49,7 @@ import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from typing import Literal, overload
 
 import torch
 from torch import Tensor
@@ -122,6 +123,27 @@ class _Rays:
     offset: Tensor  # (S, P, 3) (c - o).n, (o - c).right, (o - c).up of the cell centre
     jitter: Tensor  # (S, P, 2, 3) the same projections of the two cell half-extent vectors
     power: Tensor  # (S, P) power reflected by the cell towards the target (W)
+
+
+@overload
+def trace(heliostats: Heliostat | Sequence[Heliostat], target: Target, azimuth: Tensor, elevation: Tensor,
+          optics: Optics, *, rays: int, splat: str = "bilinear", cells_per_side: int = 32, seed: int = 0,
+          chunk_rays: int = 2**19, aim_point: Tensor | None = None, with_launched: Literal[False] = False,
+          mirror_weight: Tensor | None = None) -> Tensor: ...
+
+
+@overload
+def trace(heliostats: Heliostat | Sequence[Heliostat], target: Target, azimuth: Tensor, elevation: Tensor,
+          optics: Optics, *, rays: int, splat: str = "bilinear", cells_per_side: int = 32, seed: int = 0,
+          chunk_rays: int = 2**19, aim_point: Tensor | None = None, with_launched: Literal[True],
+          mirror_weight: Tensor | None = None) -> tuple[Tensor, Tensor]: ...
+
+
+@overload
+def trace(heliostats: Heliostat | Sequence[Heliostat], target: Target, azimuth: Tensor, elevation: Tensor,
+          optics: Optics, *, rays: int, splat: str = "bilinear", cells_per_side: int = 32, seed: int = 0,
+          chunk_rays: int = 2**19, aim_point: Tensor | None = None, with_launched: bool = False,
+          mirror_weight: Tensor | None = None) -> Tensor | tuple[Tensor, Tensor]: ...
 
 
 def trace(
@@ -337,7 +359,8 @@ def deposit(col: Tensor, row: Tensor, power: Tensor, resolution: tuple[int, int]
     return flat.view(n_images, rows + 3, cols + 3)[:, 1 : rows + 1, 1 : cols + 1]
 
 
-def _pixel_coefficients(c: _Rays, target: Target) -> tuple[list[dict], list[dict]]:
+def _pixel_coefficients(c: _Rays, target: Target
+                        ) -> tuple[list[dict[str | int, Tensor]], list[dict[str | int, Tensor]]]:
     """Ray coefficients rescaled so that the hit lands in padded pixel coordinates.
 
     Returns, for m = 0 (target normal), 1 (column), 2 (row): direction[m] = {term: (S, P, 1)}
@@ -349,9 +372,10 @@ def _pixel_coefficients(c: _Rays, target: Target) -> tuple[list[dict], list[dict
     pw, ph = target.pixel_size
     scale = (1.0, 1.0 / pw, -1.0 / ph)
     shift = (0.0, target.width / (2 * pw) + 0.5, target.height / (2 * ph) + 0.5)
-    direction, position = [], []
+    direction: list[dict[str | int, Tensor]] = []
+    position: list[dict[str | int, Tensor]] = []
     for m in range(3):
-        d = {"base": c.along[:, :, 0, m, None] * scale[m]}
+        d: dict[str | int, Tensor] = {"base": c.along[:, :, 0, m, None] * scale[m]}
         d.update({i: c.along[:, :, i + 1, m, None] * scale[m] for i in range(4)})
         direction.append(d)
         position.append({"base": c.offset[:, :, m, None] * scale[m] + shift[m],

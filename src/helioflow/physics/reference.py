@@ -187,8 +187,8 @@ def reference_trace(
         row = (target.height / 2 - v) / ph - 0.5
         power = np.where(hit_ok, power_per_ray * cos_incidence, 0.0)
         if optics.mirror_mask is not None:  # each ray's own point, incoming and reflected direction
-            mask = optics.mirror_mask(MirrorPoints(*(torch.as_tensor(a) for a in (point_h, point, to_sun, reflected)),
-                                                   aim, torch.as_tensor(sun)[None]))
+            at = [torch.as_tensor(a) for a in (point_h, point, to_sun, reflected)]
+            mask = optics.mirror_mask(MirrorPoints(at[0], at[1], at[2], at[3], aim, torch.as_tensor(sun)[None]))
             power = power * mask.double().numpy()
         c0, r0 = np.floor(col), np.floor(row)
         fc, fr = col - c0, row - r0

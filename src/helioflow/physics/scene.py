@@ -10,6 +10,7 @@ plane (`effective_tensors`), so that no effect can mimic another.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any, Literal, cast, overload
 
 import torch
 from torch import Tensor
@@ -42,6 +43,21 @@ class Scene:
     rays: int = 200_000
     cells_per_side: int = 16
     neighbours: Tensor | None = None
+
+    @overload
+    def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,
+                 seed: int = 0, with_lost: Literal[False] = False, facets: Tensor | None = None,
+                 mirror_weight: Tensor | None = None, projected: bool = False) -> Tensor: ...
+
+    @overload
+    def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,
+                 seed: int = 0, *, with_lost: Literal[True], facets: Tensor | None = None,
+                 mirror_weight: Tensor | None = None, projected: bool = False) -> tuple[Tensor, Tensor]: ...
+
+    @overload
+    def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,
+                 seed: int = 0, with_lost: bool = False, facets: Tensor | None = None,
+                 mirror_weight: Tensor | None = None, projected: bool = False) -> Tensor | tuple[Tensor, Tensor]: ...
 
     def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,
                  seed: int = 0, with_lost: bool = False, facets: Tensor | None = None,
@@ -112,6 +128,21 @@ class LinearisedScene:
         """The scene's heliostat."""
         return self.scene.heliostat
 
+    @overload
+    def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,
+                 seed: int = 0, with_lost: Literal[False] = False, facets: Tensor | None = None,
+                 projected: bool = False) -> Tensor: ...
+
+    @overload
+    def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,
+                 seed: int = 0, *, with_lost: Literal[True], facets: Tensor | None = None,
+                 projected: bool = False) -> tuple[Tensor, Tensor]: ...
+
+    @overload
+    def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,
+                 seed: int = 0, with_lost: bool = False, facets: Tensor | None = None,
+                 projected: bool = False) -> Tensor | tuple[Tensor, Tensor]: ...
+
     def simulate(self, effects: dict, tensors: dict[str, Tensor], azimuth_deg: Tensor, elevation_deg: Tensor,
                  seed: int = 0, with_lost: bool = False, facets: Tensor | None = None,
                  projected: bool = False) -> Tensor | tuple[Tensor, Tensor]:
@@ -129,9 +160,10 @@ def photographed(physics, target: Target, traced: Tensor | tuple[Tensor, Tensor]
     """A trace's flux (N, H, W) W/m^2 (and, with_lost, the (N,) power launched towards the target
     plane, W) as the camera sees it: images, and with_lost the flux that missed them (see
     Scene.simulate)."""
-    flux, launched = traced if with_lost else (traced, None)
+    # `traced` is (flux, launched) with_lost, the flux alone without
+    flux, launched = cast(tuple[Tensor, Tensor], traced) if with_lost else (cast(Tensor, traced), None)
     images = physics.camera.apply(flux) if physics.camera is not None else flux
-    if not with_lost:
+    if launched is None:
         return images
     gain = physics.camera.gain if physics.camera is not None else 1.0
     return images, (launched / target.pixel_area - flux.sum((-2, -1))).clamp_min(0.0) * gain
@@ -140,7 +172,8 @@ def photographed(physics, target: Target, traced: Tensor | tuple[Tensor, Tensor]
 def with_tensors(heliostat: Heliostat, effective: dict[str, Tensor]) -> Heliostat:
     """The heliostat with the fit tensors as it takes them (`effective_tensors`: tracking (5,) mrad,
     canting (F, 2) mrad, surface (F, C, C) mm) in place of its own tracking, canting and heights."""
-    return replace(heliostat, **{TENSOR_EFFECTS[k].field: v * 1e-3 for k, v in effective.items()})
+    fields: dict[str, Any] = {TENSOR_EFFECTS[k].field: v * 1e-3 for k, v in effective.items()}
+    return replace(heliostat, **fields)
 
 
 def effective_tensors(tensors: dict[str, Tensor]) -> dict[str, Tensor]:
@@ -168,7 +201,8 @@ def dataset_scene(heliostat: Heliostat, attrs: dict, image_shape: tuple[int, int
     trace_settings = attrs.get("trace") or {}
     target = Target(torch.tensor(attrs["target_center_m"], dtype=torch.float32, device=device),
                     torch.tensor(attrs["target_normal"], dtype=torch.float32, device=device),
-                    float(attrs["target_size_m"][0]), float(attrs["target_size_m"][1]), tuple(image_shape),
+                    float(attrs["target_size_m"][0]), float(attrs["target_size_m"][1]),
+                    (int(image_shape[0]), int(image_shape[1])),
                     None if aim is None else torch.tensor(aim, dtype=torch.float32, device=device),
                     images_pixel_variance(trace_settings))
     dni = float(attrs["dni_w_m2"])

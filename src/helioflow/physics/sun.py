@@ -42,8 +42,7 @@ _BLUR_REACH = 8.0  # the Gaussian blur is cut off beyond this many sigmas
 
 def _check(key: str, value: object, ok: Callable[[float], bool], allowed: str) -> float:
     """Return value as a float if it is a finite real number satisfying ok, else raise ConfigError."""
-    number = isinstance(value, int | float) and not isinstance(value, bool)
-    if not (number and math.isfinite(value) and ok(value)):
+    if not (isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) and ok(value)):
         raise ConfigError(f"sun shape: {key}={value!r} is not allowed; expected {allowed}")
     return float(value)
 

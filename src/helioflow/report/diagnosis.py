@@ -100,8 +100,8 @@ def _ranking(d: dict) -> str:
 def _named_by(entry: dict) -> str:
     """Why a selected change is named (the entry's `named_for`): its cut of the held-out error, or its
     fitted values' Wald test; empty for a change not selected."""
-    test = entry.get("significance")
     if entry.get("named_for") == "significance":
+        test = entry["significance"]
         return f"its fitted values (Wald p = {test['p']:.1g}{'' if test['determined'] else ', value not determined'})"
     return "its cut" if entry.get("meaningful") else ""
 

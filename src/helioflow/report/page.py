@@ -329,6 +329,8 @@ LAYOUT = (
 
 
 def _number(text: str | None) -> float | None:
+    if text is None:
+        return None
     try:
         return float(text)
     except (TypeError, ValueError):
@@ -344,8 +346,9 @@ def run_times(benchmark_dir: str | os.PathLike) -> list[dict]:
             records = list(csv.DictReader(io.StringIO(path.read_text(encoding="utf-8")), delimiter="\t"))
         except (OSError, UnicodeDecodeError) as exc:
             raise DataError(f"{path}: cannot read benchmark file: {exc}") from None
-        seconds = [_number(r.get("s")) for r in records]
-        if not records or None in seconds:
+        read = [_number(r.get("s")) for r in records]
+        seconds = [s for s in read if s is not None]
+        if not records or len(seconds) < len(read):
             raise DataError(f"{path}: not a snakemake benchmark file (needs a column `s` of seconds)")
         rss = [v for v in (_number(r.get("max_rss")) for r in records) if v is not None]
         rel = path.relative_to(root).with_suffix("")

@@ -143,7 +143,7 @@ def evaluate_model(model_path: str | os.PathLike, dataset_path: str | os.PathLik
     name = str(ds.attrs.get("dataset", Path(dataset_path).stem))
     pixel_m, slant_m = _geometry(ds, dataset_path)
     pred, meas, dataset_max = scored_images(model, info, ds, model_path, dataset_path, gan_samples, seed)
-    per_image = image_metrics(pred, meas, pixel_m, slant_m)
+    per_image = {k: np.asarray(v) for k, v in image_metrics(pred, meas, pixel_m, slant_m).items()}  # (N,) each
 
     if model.controllable:
         scoring = "prediction at each image's sun position"

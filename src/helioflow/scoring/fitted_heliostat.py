@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import os
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 import torch
@@ -34,6 +35,9 @@ from helioflow.models.registry import load_model
 from helioflow.models.uncertainty import FitUncertainty
 from helioflow.physics.effects import REGISTRY, TENSOR_EFFECTS
 from helioflow.physics.heliostat import Heliostat, bspline_basis
+
+if TYPE_CHECKING:
+    from helioflow.models.physical import RaytraceModel
 
 TRACKING = REGISTRY["tracking"].parameters  # the five kinematic errors, in the tensor's order
 GRID_STEP_M = 0.05  # spacing of the surface grid (m): 64 x 51 points over a 3.2 m x 2.6 m heliostat
@@ -50,6 +54,9 @@ def fitted_heliostat(model_path: str | os.PathLike, grid_step_m: float = GRID_ST
                         "(only drt fits the heliostat)")
     if grid_step_m <= 0:
         raise DataError(f"grid_step_m = {grid_step_m}: expected a positive spacing in metres")
+    model = cast("RaytraceModel", model)  # a physics model: it has a fit and its heliostat
+    fitted, tensors = model.fitted, model.fitted.tensors
+    assert model.heliostat is not None  # a fitted model keeps its heliostat
     u = fitted.uncertainty
     summary = None if u is None else u.as_json()  # every scalar with sigma, the misfit, the method
     effective = {k: TENSOR_EFFECTS[k].effective(v.detach().cpu().double()) for k, v in tensors.items()}
@@ -73,7 +80,7 @@ def fitted_heliostat(model_path: str | os.PathLike, grid_step_m: float = GRID_ST
     if "tracking" in effective:
         out["tracking_mrad"] = {p.name.removesuffix("_mrad"): _scalar(u, f"tracking.{p.name}", float(v))
                                 for p, v in zip(TRACKING, effective["tracking"].tolist())}
-    if u is not None:
+    if summary is not None:  # u is not None
         listed = {"slope_error.sigma_mrad", *(f"tracking.{p.name}" for p in TRACKING)}
         out["other_fitted"] = {k: v for k, v in summary["scalars"].items() if k not in listed}
     return out
@@ -99,10 +106,10 @@ def plot_surface(result: dict, path: str | os.PathLike) -> None:
     surface = result.get("surface")
     fig, axes = plt.subplots(1, 2, figsize=(12, 5), layout="constrained")
     for ax, key, label in zip(axes, ("deviation_mm", "sigma_mm"), ("deviation from the design (mm)", "sigma (mm)")):
-        values = None if surface is None or surface.get(key) is None else np.array(surface[key], dtype=float)
-        if values is None:
+        if surface is None or surface.get(key) is None:
             ax.axis("off")
             continue
+        values = np.array(surface[key], dtype=float)
         x, y, half = surface["x_m"], surface["y_m"], surface["grid_step_m"] / 2
         extent = (x[0] - half, x[-1] + half, y[-1] - half, y[0] + half)
         if key == "deviation_mm":
@@ -183,7 +190,7 @@ def surface_grid(heliostat: Heliostat, heights_mm: torch.Tensor, uncertainty: Fi
         weights = np.einsum("gi,gj->gij", b_down, b_right).reshape(len(s_right), c * c)  # (G, C*C)
         deviation[at] = weights @ heights[f].reshape(-1)
         entries = [f"surface.control_heights_mm[{f}, {i}, {j}]" for i in range(c) for j in range(c)]
-        if entries[0] in names:
+        if uncertainty is not None and entries[0] in names:
             index = [names.index(e) for e in entries]
             block = uncertainty.covariance[np.ix_(index, index)]
             sigma[at] = np.sqrt(np.clip(np.einsum("gi,ij,gj->g", weights, block, weights), 0.0, None))

@@ -129,7 +129,7 @@ def flux_accuracy(pred, meas) -> float | np.ndarray:
 METRICS = ("psnr", "ssim", "centroid_mrad", "flux_accuracy")
 
 
-def image_metrics(pred, meas, pixel_size_m, slant_range_m: float) -> dict[str, np.ndarray]:
+def image_metrics(pred, meas, pixel_size_m, slant_range_m: float) -> dict[str, float | np.ndarray]:
     """Every metric per image.
 
     Args:

@@ -34,6 +34,7 @@ import csv
 import io
 import json
 import os
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import torch
@@ -46,6 +47,9 @@ from helioflow.physics.effects import TENSOR_EFFECTS
 from helioflow.physics.heliostat import Heliostat
 from helioflow.physics.scene import effective_tensors
 from helioflow.scoring.recovery import pointing_angles_mrad, surface_heights
+
+if TYPE_CHECKING:
+    from helioflow.models.physical import RaytraceModel
 
 COLUMNS = ("plant", "heliostat", "dataset", "east_m", "north_m", "images", "heldout_error_ideal",
            "heldout_error_calibrated", "named_effects", "pointing_error_mrad", "pointing_error_sigma_mrad",
@@ -129,7 +133,8 @@ def heliostat_row(plant: str, heliostat: str, dataset: str, dataset_path: str | 
     """One row of the plant table (module docstring) from a heliostat's dataset, physics model and
     diagnosis, and its plant's entry of plant/shared.json (`shared`; None: no plant fit)."""
     ds = read_dataset(dataset_path)
-    model, info = load_model(model_path)
+    loaded, info = load_model(model_path)
+    model = cast("RaytraceModel", loaded)  # a physics model, unless the check next finds no fit
     fitted = getattr(model, "fitted", None)
     if fitted is None or model.heliostat is None:
         raise DataError(f"{model_path}: a {info['network']} model has no fitted heliostat; the plant table needs a "
@@ -143,6 +148,7 @@ def heliostat_row(plant: str, heliostat: str, dataset: str, dataset_path: str | 
     u = fitted.uncertainty
     flags = []
     pivot = ds.attrs.get("heliostat_position_m") or ["", ""]
+    row: dict[str, Any]
     row = {"plant": plant, "heliostat": heliostat, "dataset": dataset,
            "east_m": pivot[0] if pivot[0] == "" else round(float(pivot[0]), 2),
            "north_m": pivot[1] if pivot[1] == "" else round(float(pivot[1]), 2),

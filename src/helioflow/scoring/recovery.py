@@ -30,6 +30,7 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import replace
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 import torch
@@ -46,6 +47,9 @@ from helioflow.physics.heliostat import Heliostat, bspline_basis, orientation, w
 from helioflow.scoring.evaluation import scored_images
 from helioflow.scoring.metrics import psnr
 
+if TYPE_CHECKING:
+    from helioflow.models.physical import RaytraceModel
+
 
 def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, dataset_path: str | os.PathLike,
              device: str = "cpu") -> dict:
@@ -55,6 +59,7 @@ def recovery(model_path: str | os.PathLike, heliostat_path: str | os.PathLike, d
     tensors = getattr(getattr(model, "fitted", None), "tensors", None)
     if not tensors:
         raise DataError(f"{model_path}: a {info['network']} model has no fitted heliostat tensors to compare")
+    model = cast("RaytraceModel", model)  # a physics model: it has a fit
     tensors = {k: v.cpu() for k, v in tensors.items()}
     true = read_heliostat(heliostat_path).to("cpu", torch.float64)
     ds = read_dataset(dataset_path)
@@ -173,16 +178,16 @@ def surface_heights(control_heights_mm: torch.Tensor, samples_per_side: int = 64
 def _split_psnr(model, info: dict, ds, model_path, dataset_path) -> dict[str, float]:
     """{split: mean PSNR (dB)} of the model's predictions on each non-empty split of `ds`."""
     predicted, measured, _ = scored_images(model, info, ds, model_path, dataset_path)
-    return {split: round(float(psnr(predicted[idx], measured[idx]).mean()), 2)
+    return {split: round(float(np.mean(psnr(predicted[idx], measured[idx]))), 2)
             for split in SPLITS if len(idx := ds.indices(split))}
 
 
 def _correlation(a: torch.Tensor, b: torch.Tensor) -> float | None:
     """Pearson correlation of two height fields; None where one is flat (it has none)."""
-    a, b = a.flatten().numpy(), b.flatten().numpy()
-    if a.std() == 0.0 or b.std() == 0.0:
+    x, y = a.flatten().numpy(), b.flatten().numpy()
+    if x.std() == 0.0 or y.std() == 0.0:
         return None
-    return round(float(np.corrcoef(a, b)[0, 1]), 4)
+    return round(float(np.corrcoef(x, y)[0, 1]), 4)
 
 
 def _rounded(values: torch.Tensor) -> list[float]:

@@ -88,7 +88,7 @@ def build_table(metrics_paths: list, out_csv, out_md) -> list[dict]:
     writer.writerows({k: ("" if v is None else v) for k, v in row.items()} for row in rows)
     write_text_atomic(out_csv, buf.getvalue())
 
-    samples = sorted({d.get("samples") for _, d in entries if not d["controllable"] and d.get("samples")})
+    samples = sorted({d["samples"] for _, d in entries if not d["controllable"] and d.get("samples")})
     best_of = f"best of {', '.join(map(str, samples))}" if samples else "best of N"
     lines = [
         "**Table 1.** Mean PSNR (dB, data range 1, capped at 100 dB) and SSIM per split; predicted and "

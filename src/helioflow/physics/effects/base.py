@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -198,7 +199,8 @@ def zeroed(name: str) -> Callable[[Build], None]:
     """An `absent` hook: the heliostat's own tensor `name` (a Heliostat field) set to zeros."""
 
     def absent(build: Build) -> None:
-        build.heliostat = replace(build.heliostat, **{name: torch.zeros_like(getattr(build.heliostat, name))})
+        zeros: dict[str, Any] = {name: torch.zeros_like(getattr(build.heliostat, name))}
+        build.heliostat = replace(build.heliostat, **zeros)
 
     return absent
 
