@@ -1,4 +1,4 @@
-"""Benchmarks that print numbers: `python -m helioflow.bench raytrace`, `... field`, `... fit` or `... dag`.
+"""Benchmarks that print numbers: `python -m helioflow.bench raytrace`, `... field`, `... fit`, `... dag` or `... aim`.
 
 raytrace: one 2 m x 2 m deformed heliostat 63 m from a 64 x 64 target (the sanity_check scene:
 Buie sun CSR 0.1, slope error 0.5 mrad).
@@ -19,6 +19,14 @@ clear-day attenuation, shading and blocking; one sun position. Each field in a f
 wall time of building the geometry and of the flux map (after a warm-up map of 10 heliostats that
 fills the footprint tables), peak RSS beside the RSS after imports, and the power budget. `--device cuda`
 runs it on a GPU (peak GPU memory added); `--json PATH` writes the figures to PATH as well.
+
+aim: the aim optimiser (field.aim.optimise, 300 steps) on 1,000 and 10,000 heliostats (`--sizes`) of the
+field benchmark's layout, one design point: each spot a Gaussian of 3.5 mrad beam spread times its
+slant range, moved off its aim by a pointing error of 1 mrad std (so the spots are whole images, not
+traced: the optimiser's cost, not the tracer's), on a 128 x 128 receiver whose side grows with the field
+(8 m at 1,000 heliostats, 20 m at 10,000), limit twice the mean flux of all the power on the receiver.
+Each size in a fresh process: setup and optimisation wall time, peak RSS, the peak before (all at the
+centre) and after, and the share of the power on the receiver.
 
 dag: `snakemake -n all` on the plant_demo variant with a plant of `--heliostats` heliostats (2000):
 a generated PAINT directory (in a temporary folder) of AA39-design heliostats on a grid north of
@@ -49,6 +57,7 @@ import torch
 
 from helioflow.data.surfaces import HeliostatSpec, true_heliostat
 from helioflow.device import resolve_device
+from helioflow.field.aim import SpotPatches, optimise, render
 from helioflow.io import write_text_atomic
 from helioflow.physics.effects import resolve
 from helioflow.physics.field import FieldHeliostats, field_flux, flat_receiver
@@ -254,6 +263,75 @@ def field(threads: int, sizes: tuple[int, ...] = FIELD_SIZES, device: str = "cpu
         write_text_atomic(json_path, json.dumps(record, indent=1) + "\n")
 
 
+AIM_SIZES = (1000, 10000)
+AIM_BEAM_MRAD = 3.5  # std of a spot's beam spread (sun, slope error): its width grows with the slant range
+AIM_TRACKING_MRAD = 1.0  # std of each heliostat's pointing error, which moves its spot off the aim
+
+
+def aim_scene(n: int, seed: int = 0) -> tuple[SpotPatches, float, float]:
+    """(spots, limit W/m^2, receiver side m) of the aim benchmark with n heliostats (module docstring)."""
+    facet_w, facet_h, gap = 1.6, 1.25, 0.05
+    positions = radial_staggered(n, min_spacing(2 * facet_w + gap, 2 * facet_h + gap, clearance=1.0),
+                                 min_radius=40.0, height=2.0)
+    tower = torch.tensor([0.0, 0.0, TOWER_M], dtype=torch.float64)
+    side = 8.0 * (n / 1000) ** 0.4
+    rows = cols = 128
+    pixel = side / cols
+    ranges = (positions - tower).norm(dim=-1)
+    generator = torch.Generator().manual_seed(seed)
+    sigma_px = AIM_BEAM_MRAD * 1e-3 * ranges / pixel
+    shift_px = torch.randn(n, 2, generator=generator, dtype=torch.float64) * (2 * AIM_TRACKING_MRAD * 1e-3
+                                                                               * ranges / pixel)[:, None]
+    power = 1000.0 * 4 * facet_w * facet_h * 0.9  # W: DNI x area x reflectivity x cosine (0.9)
+    pad = 64
+    grid = torch.arange(rows + 2 * pad, dtype=torch.float64) - (rows + 2 * pad) / 2 + 0.5
+    parts = []
+    for chunk in torch.split(torch.arange(n), 256):
+        s, d = sigma_px[chunk, None, None], shift_px[chunk]
+        rr = torch.exp(-((grid[None, :] - d[:, :1]) ** 2) / (2 * s[:, :, 0] ** 2))  # (c, H) rows
+        cc = torch.exp(-((grid[None, :] - d[:, 1:]) ** 2) / (2 * s[:, :, 0] ** 2))  # (c, W) columns
+        maps = rr[:, :, None] * cc[:, None, :]
+        maps = maps / maps.sum((1, 2), keepdim=True) * power / pixel**2
+        parts.append(SpotPatches.from_maps(maps.float(), (rows, cols), (pixel, pixel)))
+    spots = SpotPatches.merge(parts)
+    limit = 2.0 * float(spots.power_w().sum()) / side**2  # twice the mean flux of all the power on the receiver
+    return spots, limit, side
+
+
+def _aim_worker(n: int, threads: int, steps: int, queue) -> None:
+    torch.set_num_threads(threads)
+    base = _rss_mb()
+    start = time.perf_counter()
+    spots, limit, side = aim_scene(n)
+    setup = time.perf_counter() - start
+    centre = torch.zeros(n, 2, dtype=torch.float32)
+    before = float(render(spots, centre).max())
+    start = time.perf_counter()
+    result = optimise(spots, centre, limit, steps=steps)
+    seconds = time.perf_counter() - start
+    patches = {g.shifted.shape[-1] - 1: len(g.members) for g in spots.groups}
+    queue.put((setup, seconds, _rss_mb(), base, before / limit, result.peak_w_m2 / limit,
+               result.on_receiver_w / float(spots.power_w().sum()), side, patches))
+
+
+def aim(threads: int, sizes: tuple[int, ...] = AIM_SIZES, steps: int = 300) -> None:
+    """The `aim` benchmark (module docstring)."""
+    print(f"helioflow aim benchmark: 128x128 receiver, {steps} steps, {threads} threads, torch {torch.__version__}")
+    print(f"{'heliostats':>10} {'receiver m':>10} {'setup s':>8} {'optimise s':>10} {'peak RSS MB':>12}"
+          f" {'after imports MB':>17} {'centre peak':>11} {'peak':>6} {'on receiver':>11}  patches (px: heliostats)")
+    ctx = mp.get_context("spawn")
+    for n in sizes:
+        queue = ctx.Queue()
+        proc = ctx.Process(target=_aim_worker, args=(n, threads, steps, queue))
+        proc.start()
+        setup, seconds, peak, base, before, after, kept, side, patches = queue.get()
+        proc.join()
+        print(f"{n:>10} {side:>10.1f} {setup:>8.1f} {seconds:>10.1f} {peak:>12.0f} {base:>17.0f} {before:>11.2f}"
+              f" {after:>6.2f} {kept:>11.1%}  {patches}")
+    print("peaks as multiples of the limit (twice the mean flux of all the power on the receiver); "
+          "on receiver: share of the spots' power the optimised aiming puts on the receiver")
+
+
 def fit(dataset: str, heliostat: str, threads: int) -> None:
     """The `fit` benchmark (module docstring)."""
     from helioflow.config import load_config, validate_config
@@ -374,10 +452,12 @@ def dag(heliostats: int) -> None:
 def main(argv: list[str] | None = None) -> None:
     """`python -m helioflow.bench NAME`: run one benchmark."""
     ap = argparse.ArgumentParser(prog="python -m helioflow.bench", description=__doc__.splitlines()[0])
-    ap.add_argument("name", choices=["raytrace", "field", "fit", "dag"])
+    ap.add_argument("name", choices=["raytrace", "field", "fit", "dag", "aim"])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--reference-rays", type=int, default=10**8, help="raytrace: rays per reference image")
-    ap.add_argument("--sizes", type=int, nargs="+", default=FIELD_SIZES, help="field: heliostats per field")
+    ap.add_argument("--sizes", type=int, nargs="+", help="field, aim: heliostats per field (default: "
+                    f"field {' '.join(map(str, FIELD_SIZES))}, aim {' '.join(map(str, AIM_SIZES))})")
+    ap.add_argument("--steps", type=int, default=300, help="aim: optimiser steps")
     ap.add_argument("--device", default="cpu", help="field: cpu, cuda or auto")
     ap.add_argument("--json", metavar="PATH", help="field: also write the figures to PATH as JSON")
     ap.add_argument("--heliostats", type=int, default=2000, help="dag: heliostats of the plant")
@@ -386,7 +466,9 @@ def main(argv: list[str] | None = None) -> None:
                     help="fit: the true heliostat the dataset was traced from")
     args = ap.parse_args(argv)
     if args.name == "field":
-        field(args.threads, tuple(args.sizes), args.device, args.json)
+        field(args.threads, tuple(args.sizes or FIELD_SIZES), args.device, args.json)
+    elif args.name == "aim":
+        aim(args.threads, tuple(args.sizes or AIM_SIZES), args.steps)
     elif args.name == "fit":
         fit(args.dataset, args.heliostat, args.threads)
     elif args.name == "dag":

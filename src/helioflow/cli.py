@@ -231,6 +231,17 @@ def cmd_compose_field(args) -> None:
     logging.info("wrote %s, %s and %s in %.1f s", args.flux, args.figure, args.metrics, metrics["seconds"])
 
 
+def cmd_optimise_aim(args) -> None:
+    """`helioflow optimise-aim`: aim points chosen on the ideal, hybrid and true field, judged on the truth."""
+    from helioflow.field.aiming import optimise_aim
+
+    spec = read_spec(args.spec)
+    result = optimise_aim(spec, spec.pop("models", []), spec.pop("datasets", []), args.metrics, args.figure)
+    for point, row in result["design_points"].items():
+        logging.info("%s: %s", point, {s: round(m["truth_peak_over_limit"], 3) for s, m in row.items()})
+    logging.info("wrote %s and %s in %.1f s", args.metrics, args.figure, result["seconds"])
+
+
 def _metrics(paths: list[str]) -> list[str]:
     """--metrics: the files, or one @FILE of a spec with the list under "metrics" (workflow.rule_spec)."""
     return read_spec(paths[0])["metrics"] if len(paths) == 1 and paths[0].startswith("@") else paths
@@ -410,6 +421,13 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--spec", help="instead of --config: the rule's parameters as JSON, or @FILE of them with the "
                                   "lists models and datasets (what the Snakefile passes: specs/compose_field.json)")
     p.set_defaults(func=cmd_compose_field)
+
+    p = sub.add_parser("optimise-aim", help="aim points under the receiver's flux limit, judged on the true field")
+    p.add_argument("--figure", required=True, help="field/aim.png")
+    p.add_argument("--metrics", required=True, help="field/aim.json")
+    p.add_argument("--spec", required=True, help="the rule's parameters as JSON, or @FILE of them with the lists "
+                   "models and datasets (what the Snakefile passes: specs/optimise_aim.json)")
+    p.set_defaults(func=cmd_optimise_aim)
 
     p = sub.add_parser("table", help="Table 1 from metrics files")
     p.add_argument("--metrics", nargs="+", required=True, help="metrics/<dataset>/<model>.json files, or @FILE: "

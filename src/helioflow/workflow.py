@@ -454,6 +454,7 @@ def report_inputs(config: dict) -> dict[str, list[str]]:
         "diagnosis_figures": [f"{r}/figures/diagnosis/{d}_{kind}.png" for d in diagnosed
                               for kind in ("signatures", "ranking", "residuals", "location", "ledger")],
         "field": [f"{r}/field/flux.png", f"{r}/field/metrics.json"] if "field" in config else [],
+        "aim": aim_paths(config),
         "leave_one_out": [p for g in leave_one_out_groups(config)
                           for p in (f"{r}/figures/leave_one_out/{g}.png", f"{r}/leave_one_out/{g}.csv")],
         "plant": plant_table_path(config),
@@ -680,7 +681,7 @@ def expand_field(config: dict) -> dict:
     return config
 
 
-SPEC_RULES = ("compose_field", "report", "table", "data_efficiency", "plant_table", "plant_shared",
+SPEC_RULES = ("compose_field", "optimise_aim", "report", "table", "data_efficiency", "plant_table", "plant_shared",
               "plant_flux")  # parameters that grow with the plant
 
 
@@ -690,6 +691,8 @@ def rule_spec(config: dict, rule: str) -> dict:
     specs/<rule>.json and the rule reads that file (`--spec @file`, `--inputs @file`, `--metrics @file`)."""
     if rule == "compose_field":
         return {**compose_field_params(config), **compose_field_inputs(config)}
+    if rule == "optimise_aim":
+        return {**optimise_aim_params(config), **compose_field_inputs(config)}
     if rule == "report":
         return report_inputs(config)
     if rule == "table":
@@ -733,6 +736,20 @@ def compose_field_inputs(config: dict) -> dict[str, list[str]]:
     network = (config.get("field") or {}).get("network")
     return {"models": [f"{r}/models/{m}/{network}.pt" for m in measured],
             "datasets": [f"{r}/datasets/{m}.h5" for m in measured]}
+
+
+def aim_paths(config: dict) -> list[str]:
+    """field/aim.png and field/aim.json, the outputs of rule optimise_aim, when config field.optimise_aim
+    asks for them."""
+    if not (config.get("field") or {}).get("optimise_aim"):
+        return []
+    return [f"{results_dir(config)}/field/aim.png", f"{results_dir(config)}/field/aim.json"]
+
+
+def optimise_aim_params(config: dict) -> dict:
+    """Parameters of rule `optimise_aim`: compose_field's, with "optimise_aim" (config
+    field.optimise_aim, the schema's defaults filled in)."""
+    return {**compose_field_params(config), "optimise_aim": copy.deepcopy(config["field"]["optimise_aim"])}
 
 
 def compose_field_params(config: dict) -> dict:

@@ -4,59 +4,21 @@ metrics, flux.h5, and a perfect model reproducing the truth to within the carryi
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-import yaml
+from support.field import build, tiny_field
 
-from helioflow.config import validate_config
 from helioflow.data.hdf5 import read_arrays
-from helioflow.data.surfaces import HeliostatSpec, true_heliostat, write_heliostat
-from helioflow.data.synthetic import trace_dataset
 from helioflow.errors import ConfigError, DataError
 from helioflow.field import compose as field_maps
 from helioflow.field.compose import SCHEMA, aim_points, build_scene, compose_field, without_fit
 from helioflow.field.metrics import MAP_METRICS, SPOT_METRICS, spot_metrics
-from helioflow.models.registry import train_network
 from helioflow.physics.carry import equivalent_sun
 from helioflow.physics.field import BUDGET_TERMS, flat_receiver
 from helioflow.physics.geometry import azimuth_elevation, sun_vector
-from helioflow.workflow import (
-    compose_field_inputs,
-    compose_field_params,
-    expand_field,
-    field_measured,
-    trace_params,
-)
-
-WORKFLOW = Path(__file__).resolve().parents[1] / "workflow"
-
-
-def tiny_field() -> dict:
-    config = yaml.safe_load((WORKFLOW / "tiny_config.yaml").read_text())
-    config.update(yaml.safe_load((WORKFLOW / "tiny_field.yaml").read_text()))
-    return expand_field(validate_config(config))
-
-
-def build(config: dict, root: Path) -> tuple[list[str], list[str]]:
-    """Surfaces, calibration datasets and nearest models of the measured heliostats under root, as
-    the surfaces, trace and train rules make them; (model paths, dataset paths)."""
-    models, datasets = [], []
-    for name, model, dataset in zip(field_measured(config), *compose_field_inputs(config).values()):
-        model, dataset = root / model, root / dataset
-        surface = root / f"surfaces/{name}.h5"
-        surface.parent.mkdir(parents=True, exist_ok=True)
-        spec = HeliostatSpec.from_config(name, config["heliostats"][name])
-        write_heliostat(surface, true_heliostat(spec), spec)
-        trace_dataset(trace_params(config, name), surface, dataset)
-        train_network(
-            "nearest", {}, dataset, model, root / f"{name}.csv", root / f"{name}.png", seed=0, progress=False
-        )
-        models.append(str(model))
-        datasets.append(str(dataset))
-    return models, datasets
+from helioflow.workflow import compose_field_params
 
 
 @pytest.fixture(scope="module")

@@ -24,3 +24,24 @@ rule compose_field:
     shell:
         "helioflow --threads {params.torch_threads:q} compose-field --spec @{input.spec:q}"
         " --flux {output.flux:q} --figure {output.figure:q} --metrics {output.metrics:q} > {log:q} 2>&1"
+
+
+rule optimise_aim:
+    """Aim points chosen on the ideal, the hybrid and the true field, each judged on the true field
+    (config field.optimise_aim)."""
+    input:
+        **compose_field_inputs(config),
+        spec=spec_path(config, "optimise_aim"),
+    output:
+        figure=f"{RESULTS}/field/aim.png",
+        metrics=f"{RESULTS}/field/aim.json",
+    params:
+        torch_threads=TORCH_THREADS,
+    log:
+        f"{RESULTS}/logs/optimise_aim/optimise_aim.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/optimise_aim/optimise_aim.tsv"
+    threads: TORCH_THREADS
+    shell:
+        "helioflow --threads {params.torch_threads:q} optimise-aim --spec @{input.spec:q}"
+        " --figure {output.figure:q} --metrics {output.metrics:q} > {log:q} 2>&1"

@@ -86,3 +86,58 @@ def _plan(ax, positions: np.ndarray, measured: list[int], labels: tuple[str, str
     ax.tick_params(labelsize=7)
     ax.legend(fontsize=7, loc="lower left")
     ax.set_title(f"field: {len(positions)} heliostats, {len(measured)} {labels[1].split()[0]}", fontsize=9)
+
+
+def plot_aim_maps(
+    path: str | os.PathLike,
+    maps: dict[str, np.ndarray],
+    aims: dict[str, np.ndarray],
+    points: list[str],
+    limit_w_m2: float,
+    receiver_size_m: tuple[float, float],
+    title: str,
+) -> None:
+    """Write rule optimise_aim's figure (PNG): per design point the true flux map under each aiming
+    on one flux scale, the limit drawn as a contour, and the aim points on the receiver.
+
+    Args:
+        maps: {strategy: (S, H, W) true flux (W/m^2)}, drawn in this order.
+        aims: {strategy: (S, N, 2) aim points (right, up; m from the receiver centre)}.
+        points: S design point names.
+        limit_w_m2: the flux limit (W/m^2).
+        receiver_size_m: (width, height) of the receiver (m).
+    """
+    names = list(maps)
+    w, h = receiver_size_m
+    extent = (-w / 2, w / 2, -h / 2, h / 2)
+    fig, axes = plt.subplots(len(points), len(names) + 1, figsize=(2.5 * (len(names) + 1) + 0.6, 2.6 * len(points)
+                                                                    + 0.8), squeeze=False)
+    vmax = max(float(m.max()) for m in maps.values()) / 1e3 or 1.0
+    for row, point in enumerate(points):
+        for col, name in enumerate(names):
+            ax, image = axes[row, col], maps[name][row]
+            shown = ax.imshow(image / 1e3, extent=extent, cmap="inferno", vmin=0.0, vmax=vmax)
+            if image.max() > limit_w_m2:
+                ax.contour(image / 1e3, levels=[limit_w_m2 / 1e3], colors="cyan", linewidths=0.8,
+                           extent=extent, origin="upper")
+            ax.set_title(f"{name}: peak {image.max() / limit_w_m2:.2f} × limit", fontsize=8)
+            ax.tick_params(labelsize=6)
+            if col == 0:
+                ax.set_ylabel(f"{point}\nup (m)", fontsize=8)
+        ax = axes[row, -1]
+        for name, marker in zip(names, ("o", "x", "+", ".")):
+            a = aims[name][row]
+            ax.scatter(a[:, 0], a[:, 1], s=14, marker=marker, label=name)
+        start, chosen = aims[names[0]][row], aims[names[-2] if len(names) > 2 else names[-1]][row]
+        ax.quiver(start[:, 0], start[:, 1], chosen[:, 0] - start[:, 0], chosen[:, 1] - start[:, 1],
+                  angles="xy", scale_units="xy", scale=1, width=0.004, color="0.4")
+        ax.set_xlim(-w / 2, w / 2)
+        ax.set_ylim(-h / 2, h / 2)
+        ax.set_aspect("equal")
+        ax.set_title(f"aim points (arrows: {names[0]} → {names[-2] if len(names) > 2 else names[-1]})", fontsize=8)
+        ax.tick_params(labelsize=6)
+        ax.legend(fontsize=6, loc="lower left")
+    bar = fig.colorbar(shown, ax=axes[:, :-1], fraction=0.02, pad=0.01)
+    bar.ax.set_title("kW/m²", fontsize=7)
+    fig.suptitle(f"{title}; cyan: flux above the limit", fontsize=10)
+    save_figure(fig, path)

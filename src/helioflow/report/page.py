@@ -16,6 +16,7 @@ benchmark files, and writes results/<experiment>/report.html with the sections
     Error ledger        the `ledger` of each diagnosis JSON and figures/diagnosis/<d>_ledger.png
     Field flux maps     field/flux.png (truth, ideal, hybrid maps beside their differences to truth)
                         and field/metrics.json as tables
+    Aim points          field/aim.png and field/aim.json (each aiming judged on the true field), if asked for
     Leave-one-out       figures/leave_one_out/<d>.png and leave_one_out/<d>.csv (held-out scores
                         per real image and network) as a table
     The plant           plant/shared.json (what the heliostats share), plant/plan.png (the plant's
@@ -56,7 +57,8 @@ from helioflow.report.html import (
 )
 
 SECTIONS = ("datasets", "dataset_figures", "paint_centroids", "table", "samples", "psnr", "data_efficiency",
-            "recovery", "heliostats", "plan", "diagnosis", "diagnosis_figures", "field", "leave_one_out", "plant",
+            "recovery", "heliostats", "plan", "diagnosis", "diagnosis_figures", "field", "aim", "leave_one_out",
+            "plant",
             "plant_plan", "plant_shared", "plant_flux")
 PLANT_WORST = 20  # heliostats listed in the report's plant section
 ABSENT = '<p class="absent">Not part of this experiment.</p>'
@@ -187,6 +189,29 @@ def _field_section(files: dict[str, list[str]]) -> str:
             parts.append(figure(path, "field flux maps on the receiver per sun design point"))
         else:
             parts += ["<h3>Metrics against truth</h3>", nested_tables(read_json(path))]
+    return "\n".join(parts)
+
+
+AIM_COLUMNS = ("truth_peak_over_limit", "truth_intercepted_w", "truth_spillage", "truth_area_over_limit",
+               "intercept_of_bound", "model_peak_over_limit", "mean_aim_move_m")
+
+
+def _aim_section(files: dict[str, list[str]]) -> str:
+    """Rule optimise_aim's figure and, per design point, each aiming judged on the true field."""
+    parts = []
+    for path in files["aim"]:
+        if Path(path).suffix == ".png":
+            parts.append(figure(path, "true flux under each aiming, and the aim points"))
+            continue
+        result = read_json(path)
+        parts.append(f"<p>Flux limit {result['limit_kw_m2']:g} kW/m²; {result['heliostats']} heliostats, "
+                     f"{len(result['measured'])} measured with {esc(result['network'])}. Every aiming is "
+                     "traced on the true field (truth_*); model_peak_over_limit is what its own model "
+                     "promised.</p>")
+        for point, row in result["design_points"].items():
+            parts.append(f"<h3>{esc(point)}</h3>")
+            parts.append(table(["aiming", *AIM_COLUMNS],
+                               [[s, *(m[c] for c in AIM_COLUMNS)] for s, m in row.items()]))
     return "\n".join(parts)
 
 
@@ -323,6 +348,7 @@ LAYOUT = (
     ("diagnosis", "Diagnosis: which effect is missing", ("diagnosis",), diagnosis_section),
     ("ledger", "Error ledger", ("diagnosis",), ledger_section),
     ("field", "Field flux maps", ("field",), _field_section),
+    ("aim", "Aim points under the flux limit", ("aim",), _aim_section),
     ("leave_one_out", "Leave-one-out on real images", ("leave_one_out",), _leave_one_out_section),
     ("plant", "The plant", ("plant_shared", "plant", "plant_plan", "plant_flux"), _plant_section),
 )

@@ -1,0 +1,38 @@
+"""The tiny field the field tests compose: its config and its measured heliostats' models."""
+
+from pathlib import Path
+
+import yaml
+
+from helioflow.config import validate_config
+from helioflow.data.surfaces import HeliostatSpec, true_heliostat, write_heliostat
+from helioflow.data.synthetic import trace_dataset
+from helioflow.models.registry import train_network
+from helioflow.workflow import compose_field_inputs, expand_field, field_measured, trace_params
+
+WORKFLOW = Path(__file__).resolve().parents[1] / "workflow"
+
+
+def tiny_field() -> dict:
+    config = yaml.safe_load((WORKFLOW / "tiny_config.yaml").read_text())
+    config.update(yaml.safe_load((WORKFLOW / "tiny_field.yaml").read_text()))
+    return expand_field(validate_config(config))
+
+
+def build(config: dict, root: Path) -> tuple[list[str], list[str]]:
+    """Surfaces, calibration datasets and nearest models of the measured heliostats under root, as
+    the surfaces, trace and train rules make them; (model paths, dataset paths)."""
+    models, datasets = [], []
+    for name, model, dataset in zip(field_measured(config), *compose_field_inputs(config).values()):
+        model, dataset = root / model, root / dataset
+        surface = root / f"surfaces/{name}.h5"
+        surface.parent.mkdir(parents=True, exist_ok=True)
+        spec = HeliostatSpec.from_config(name, config["heliostats"][name])
+        write_heliostat(surface, true_heliostat(spec), spec)
+        trace_dataset(trace_params(config, name), surface, dataset)
+        train_network(
+            "nearest", {}, dataset, model, root / f"{name}.csv", root / f"{name}.png", seed=0, progress=False
+        )
+        models.append(str(model))
+        datasets.append(str(dataset))
+    return models, datasets
