@@ -299,12 +299,6 @@ def test_the_plant_section_shows_what_the_heliostats_share(tmp_path):
     assert ("<td>camera.blur_px</td><td>1.4159 ± 0.05</td><td>P000 1.416 ± 0.05, P001 1.678 ± 0.04 (own widening)</td>"
             "<td class=\"num\">1.00</td>") in text
     assert "<td>sunshape: buie</td>" in text and ">32 %<" in text
-    # the range test sets the sun's width and the blur beside it (diagnosis.shared): no heliostat alone has them
-    shared["plant"]["shared"][1]["values"] = {"sunshape.sigma_mrad": {"value": 3.4912, "sigma": 0.22534,
-                                                                      "from": "the range test"}}
-    path.write_text(json.dumps(shared))
-    text = _section(build_report({"plant_shared": [str(path)]}, None, "t"), "The plant")
-    assert "<td>sunshape.sigma_mrad</td><td>3.4912 ± 0.23</td><td>set by the range test</td>" in text
     path.write_text(json.dumps({"plant": {"shared": []}}))
     with pytest.raises(DataError, match="shared.json: not a plant fit"):
         build_report({"plant_shared": [str(path)]}, None, "t")

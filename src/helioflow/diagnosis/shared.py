@@ -553,8 +553,6 @@ def sources(value: dict) -> str:
     """What a shared value (`PlantFit.sigma`'s entry) is and where its sigma comes from, in words
     (module docstring, 4 and 6): the fewer heliostats the clipping kept, the more the clipped level
     rests on a few heliostats' luck of carrying no widening of their own."""
-    if "clipped" not in value:
-        return ""
     kept = sum(a["kept"] for a in value["alone"].values())
     return (f" (the lower envelope of the {len(value['alone'])} heliostats' values; {value['sigma_statistical']:.2g} "
             f"from their scatter, {value['sigma_systematic']:.2g} from their own widenings: the level where the "

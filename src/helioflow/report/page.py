@@ -314,7 +314,7 @@ def _plant_flux_part(path: str) -> str:
 def _shared_part(path: str) -> str:
     """plant/shared.json (diagnosis.shared): per plant entry the verdict, the shared values with their
     sigma beside what each heliostat alone makes of them (marked where the level set it aside as a
-    widening of its own; a value the range test set says so instead), and every shared change tried."""
+    widening of its own), and every shared change tried."""
     data = read_json(path)
     if not isinstance(data, dict) or not all(isinstance(v, dict) and "verdict" in v for v in data.values()):
         raise DataError(f"{path}: not a plant fit (written by `plant-shared`): needs a verdict per plant entry")
@@ -322,8 +322,7 @@ def _shared_part(path: str) -> str:
     for plant, entry in data.items():
         values = [[name, f"{fixed(v['value'], 4)} ± {fixed(v['sigma'], 2)}",
                    ", ".join(f"{h} {fixed(a['value'], 3)} ± {fixed(a['sigma'], 2)}"
-                             + ("" if a["kept"] else " (own widening)") for h, a in v.get("alone", {}).items())
-                   or f"set by {v.get('from', 'the plant fit')}",
+                             + ("" if a["kept"] else " (own widening)") for h, a in v["alone"].items()),
                    fixed(v.get("kept_chi2_per_dof", "–"), 2)]
                   for s in entry.get("shared", []) for name, v in s.get("values", {}).items()]
         tried = [[t["change"], fixed(t["heldout_error"], 4), f"{100 * t['relative_reduction']:.0f} %",

@@ -118,8 +118,8 @@ def unnamed_widening(heliostat: str, named: list[str], shared: dict | None) -> s
     for effect in shared.get("shared", []):
         for name, value in effect.get("values", {}).items():
             alone = value.get("alone", {}).get(heliostat)
-            if "clipped" not in value or alone is None or not alone["sigma"] > 0:
-                continue  # not a level (the range test's value) or not among the heliostats the plant fit took
+            if alone is None or not alone["sigma"] > 0:
+                continue  # not among the heliostats the plant fit took
             z = (alone["value"] - value["value"]) / alone["sigma"]
             if z > WIDENED:
                 return (f"own widening unnamed ({name} {alone['value']:.4g} +- {alone['sigma']:.2g} alone, "
