@@ -254,8 +254,8 @@ def test_report_inputs_of_the_tiny_config_list_the_expected_files():
         "datasets": [f"{r}/datasets/scan.h5", f"{r}/datasets/sky.h5"],
         "dataset_figures": [f"{r}/figures/datasets/scan.png", f"{r}/figures/datasets/sky.png"],
         "paint_centroids": [], "table": [], "samples": [], "psnr": [], "data_efficiency": [], "recovery": [],
-        "heliostats": [], "plan": [], "diagnosis": [], "diagnosis_figures": [], "field": [], "aim": [], "leave_one_out": [],
-        "plant": [], "plant_plan": [], "plant_flux": [], "plant_shared": [],
+        "heliostats": [], "plan": [], "diagnosis": [], "diagnosis_figures": [], "field": [], "aim": [],
+        "leave_one_out": [], "plant": [], "plant_plan": [], "plant_flux": [], "plant_shared": [],
     }
     config = copy.deepcopy(config)
     config.update(networks={"nearest": {}}, diagnosis={}, field={})
