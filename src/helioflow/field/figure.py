@@ -110,12 +110,15 @@ def plot_aim_maps(
     names = list(maps)
     w, h = receiver_size_m
     extent = (-w / 2, w / 2, -h / 2, h / 2)
-    fig, axes = plt.subplots(len(points), len(names) + 1, figsize=(2.5 * (len(names) + 1) + 0.6, 2.6 * len(points)
-                                                                    + 0.8), squeeze=False)
+    fig = plt.figure(figsize=(2.5 * (len(names) + 1) + 1.0, 2.6 * len(points) + 0.8))
+    # maps | colour bar | gap | aim points
+    grid = fig.add_gridspec(len(points), len(names) + 3, width_ratios=[1] * len(names) + [0.06, 0.25, 1],
+                            wspace=0.3, hspace=0.45)
     vmax = max(float(m.max()) for m in maps.values()) / 1e3 or 1.0
+    moved = names[-2] if len(names) > 2 else names[-1]
     for row, point in enumerate(points):
         for col, name in enumerate(names):
-            ax, image = axes[row, col], maps[name][row]
+            ax, image = fig.add_subplot(grid[row, col]), maps[name][row]
             shown = ax.imshow(image / 1e3, extent=extent, cmap="inferno", vmin=0.0, vmax=vmax)
             if image.max() > limit_w_m2:
                 ax.contour(image / 1e3, levels=[limit_w_m2 / 1e3], colors="cyan", linewidths=0.8,
@@ -124,20 +127,21 @@ def plot_aim_maps(
             ax.tick_params(labelsize=6)
             if col == 0:
                 ax.set_ylabel(f"{point}\nup (m)", fontsize=8)
-        ax = axes[row, -1]
+        bar = fig.colorbar(shown, cax=fig.add_subplot(grid[row, len(names)]))
+        bar.ax.tick_params(labelsize=6)
+        bar.ax.set_title("kW/m²", fontsize=6)
+        ax = fig.add_subplot(grid[row, -1])
         for name, marker in zip(names, ("o", "x", "+", ".")):
             a = aims[name][row]
             ax.scatter(a[:, 0], a[:, 1], s=14, marker=marker, label=name)
-        start, chosen = aims[names[0]][row], aims[names[-2] if len(names) > 2 else names[-1]][row]
+        start, chosen = aims[names[0]][row], aims[moved][row]
         ax.quiver(start[:, 0], start[:, 1], chosen[:, 0] - start[:, 0], chosen[:, 1] - start[:, 1],
                   angles="xy", scale_units="xy", scale=1, width=0.004, color="0.4")
         ax.set_xlim(-w / 2, w / 2)
         ax.set_ylim(-h / 2, h / 2)
         ax.set_aspect("equal")
-        ax.set_title(f"aim points (arrows: {names[0]} → {names[-2] if len(names) > 2 else names[-1]})", fontsize=8)
+        ax.set_title(f"aim points (arrows: {names[0]} → {moved})", fontsize=8)
         ax.tick_params(labelsize=6)
         ax.legend(fontsize=6, loc="lower left")
-    bar = fig.colorbar(shown, ax=axes[:, :-1], fraction=0.02, pad=0.01)
-    bar.ax.set_title("kW/m²", fontsize=7)
     fig.suptitle(f"{title}; cyan: flux above the limit", fontsize=10)
     save_figure(fig, path)
