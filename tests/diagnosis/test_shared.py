@@ -173,13 +173,18 @@ def test_a_blur_that_grows_with_slant_range_is_a_sun_told_too_narrow(told_mrad):
 
 
 def test_a_sun_the_plant_changes_is_not_called_kept_as_configured():
-    values = {"camera.blur_px": {"value": 1.503, "sigma": 0.095},
-              "sunshape.sigma_mrad": {"value": 2.81, "sigma": 0.24}}
+    def level(value, sigma):  # as PlantFit.sigma writes it: the level, its sigma's parts, each heliostat alone
+        return {"value": value, "sigma": sigma, "sigma_statistical": sigma / 2, "sigma_systematic": sigma / 2,
+                "clipped": value, "alone": {"P000": {"value": value, "sigma": sigma, "kept": True}}}
+
+    values = {"camera.blur_px": level(1.503, 0.095), "sunshape.sigma_mrad": level(2.81, 0.24)}
     kept = {"camera": {"blur_px": 1.503}, "sunshape": {"kind": "gaussian", "sigma_mrad": 2.81}}
     chosen = ["camera", "sunshape: fit sigma_mrad"]
     words = plant_verdict(30, 0.42, 0.02, chosen, {"camera", "sunshape"}, kept, values)
     assert words.startswith("Shared by the 30 heliostats fitted: camera, sunshape: fit sigma_mrad (camera.blur_px = "
-                            "1.503 +- 0.095; sunshape.sigma_mrad = 2.81 +- 0.24): the plant's held-out error falls")
+                            "1.503 +- 0.095 (the lower envelope of the 1 heliostats' values")
+    assert "; sunshape.sigma_mrad = 2.81 +- 0.24 (the lower envelope" in words
+    assert "): the plant's held-out error falls from 0.4200 to 0.0200." in words
     assert "Kept as configured" not in words
     assert "Kept as configured: sunshape." in plant_verdict(30, 0.42, 0.02, ["camera"], {"camera"}, kept, {})
 
