@@ -91,8 +91,9 @@ def test_a_module_dropped_in_a_folder_is_an_effect(tmp_path, monkeypatch):
         def apply(build, params):
             build.reflectivity *= 1.0 - params.get("loss", 0.0)
 
-        EFFECT = Effect("glare", 5, "ray power", (Parameter("loss", 0.0, 0.0, 1.0, role="scale"),), False,
-                        "a test effect", apply, tried_as={"loss": FIT}, neutral={"loss": 0.0},
+        EFFECT = Effect(name="glare", order=5, acts_on="ray power",
+                        parameters=(Parameter("loss", 0.0, 0.0, 1.0, role="scale"),), identifiable=False,
+                        doc="a test effect", apply=apply, tried_as={"loss": FIT}, neutral={"loss": 0.0},
                         missing_text="glare", signature_text="the flux is {ratio:.2f} times the model's")
     '''))
     monkeypatch.syspath_prepend(str(tmp_path))

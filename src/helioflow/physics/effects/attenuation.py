@@ -37,8 +37,8 @@ def apply(build: Build, params: dict) -> None:
 
 
 EFFECT = Effect(
-    "attenuation", 60, "ray power", PARAMETERS, False,
-    "atmospheric extinction over the slant range from mirror to target", apply,
+    name="attenuation", order=60, acts_on="ray power", parameters=PARAMETERS, identifiable=False,
+    doc="atmospheric extinction over the slant range from mirror to target", apply=apply,
     tried_as={"model": "constant", "transmittance": FIT}, neutral={"model": "constant", "transmittance": 1.0},
     missing_text="atmospheric attenuation",
     signature_text="the measured flux is {ratio:.3f} times the model's (a scale)",

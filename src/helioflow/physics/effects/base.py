@@ -117,7 +117,7 @@ class Variant:
     neutral: dict | None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Effect:
     """A physical mechanism and every fact about it (one module of physics/effects/).
 

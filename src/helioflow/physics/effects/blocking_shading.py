@@ -11,8 +11,9 @@ def apply(build: Build, params: dict) -> None:
 
 
 EFFECT = Effect(
-    "blocking_shading", 80, "rays lost on the way in or out", (), True,
-    "shading and blocking between neighbouring heliostats, from the field geometry (field traces only)", apply,
+    name="blocking_shading", order=80, acts_on="rays lost on the way in or out", parameters=(), identifiable=True,
+    doc="shading and blocking between neighbouring heliostats, from the field geometry (field traces only)",
+    apply=apply,
     not_applicable="a calibration dataset images one heliostat, and its neighbours' positions are not known here",
     missing_text="shading and blocking by neighbouring heliostats",
     signature_text="the measured spots lose flux at low sun",

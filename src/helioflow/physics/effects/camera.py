@@ -25,7 +25,8 @@ def apply(build: Build, params: dict) -> None:
 
 
 EFFECT = Effect(
-    "camera", 90, "image", PARAMETERS, True, "the calibration camera: gain, background, blur, noise", apply,
+    name="camera", order=90, acts_on="image", parameters=PARAMETERS, identifiable=True,
+    doc="the calibration camera: gain, background, blur, noise", apply=apply,
     tried_as={"gain": FIT, "background_w_m2": FIT, "blur_px": FIT},
     neutral={"gain": 1.0, "background_w_m2": 0.0, "blur_px": 0.0},
     missing_text="the camera's response (background and blur)",

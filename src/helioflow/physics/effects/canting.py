@@ -16,7 +16,8 @@ def zero_mean(tilts: Tensor) -> Tensor:
 
 
 EFFECT = Effect(
-    "canting", 40, "mirror normals", PARAMETERS, True, "per-facet tilt errors; unset: the heliostat's own",
+    name="canting", order=40, acts_on="mirror normals", parameters=PARAMETERS, identifiable=True,
+    doc="per-facet tilt errors; unset: the heliostat's own",
     apply=lambda build, params: None, absent=zeroed("canting_error"),
     tensor=TensorRole("facet_tilts_mrad", "canting_error", 0.01, all_free("facet_tilts_mrad", "canting_error"),
                       zero_mean),

@@ -66,8 +66,8 @@ def apply(build: Build, params: dict) -> None:
 
 
 EFFECT = Effect(
-    "neighbour_shading", 78, "mirror mask", (), True,
-    "shading and blocking by neighbouring heliostats of known position, in calibration images", apply,
+    name="neighbour_shading", order=78, acts_on="mirror mask", parameters=(), identifiable=True,
+    doc="shading and blocking by neighbouring heliostats of known position, in calibration images", apply=apply,
     tried_as={}, needs=("neighbours", "no neighbour is known within 30 m (a PAINT import lists the other heliostats' "
                                      "folders of its directory)"),
     missing_text="shading and blocking by its neighbours (their positions are known)",

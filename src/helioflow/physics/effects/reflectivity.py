@@ -13,7 +13,8 @@ def apply(build: Build, params: dict) -> None:
 
 
 EFFECT = Effect(
-    "reflectivity", 70, "ray power", PARAMETERS, False, "mirror reflectivity", apply,
+    name="reflectivity", order=70, acts_on="ray power", parameters=PARAMETERS, identifiable=False,
+    doc="mirror reflectivity", apply=apply,
     tried_as={"value": FIT}, neutral={"value": 1.0},
     missing_text="a lower mirror reflectivity",
     signature_text="the measured flux is {ratio:.3f} times the model's (a scale)",

@@ -13,7 +13,8 @@ def apply(build: Build, params: dict) -> None:
 
 
 EFFECT = Effect(
-    "slope_error", 20, "mirror normals", PARAMETERS, True, "small-scale random mirror slope errors", apply,
+    name="slope_error", order=20, acts_on="mirror normals", parameters=PARAMETERS, identifiable=True,
+    doc="small-scale random mirror slope errors", apply=apply,
     tried_as={"sigma_mrad": FIT}, neutral={"sigma_mrad": 0.0},
     missing_text="slope error (small-scale mirror roughness)",
     signature_text="the measured spots are {width} than the model's, in every direction",

@@ -34,8 +34,9 @@ def apply(build: Build, params: dict) -> None:
 
 
 EFFECT = Effect(
-    "soiling", 75, "mirror mask", PARAMETERS, True, "soiling that grows from the mirror's top edge to its bottom edge",
-    apply, tried_as={"gradient": FIT}, neutral={"gradient": 0.0},
+    name="soiling", order=75, acts_on="mirror mask", parameters=PARAMETERS, identifiable=True,
+    doc="soiling that grows from the mirror's top edge to its bottom edge",
+    apply=apply, tried_as={"gradient": FIT}, neutral={"gradient": 0.0},
     missing_text="soiling that grows down the mirror (its lower part reflects less)",
     signature_text="the measured spots hold less flux on one side than the model's, at every sun position",
     plausible={"gradient": (0.0, 0.6, "more than 60 % of the reflectance lost at the mirror's bottom edge")},

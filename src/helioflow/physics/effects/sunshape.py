@@ -37,7 +37,8 @@ def variants(params: dict) -> list[Variant]:
 
 
 EFFECT = Effect(
-    "sunshape", 10, "sun profile", PARAMETERS, True, "the sun's angular radiance profile", apply,
+    name="sunshape", order=10, acts_on="sun profile", parameters=PARAMETERS, identifiable=True,
+    doc="the sun's angular radiance profile", apply=apply,
     tried_as={"kind": "gaussian", "sigma_mrad": FIT}, variants=variants,
     missing_text="a wider sun shape",
     signature_text="the measured spots are {width} than the model's, in every direction",

@@ -10,8 +10,8 @@ PARAMETERS = (Parameter("control_heights_mm", None, -20.0, 20.0, role="tensor", 
 
 
 EFFECT = Effect(
-    "surface", 50, "mirror normals", PARAMETERS, True,
-    "smooth deformation (B-spline control-point heights); unset: the heliostat's own",
+    name="surface", order=50, acts_on="mirror normals", parameters=PARAMETERS, identifiable=True,
+    doc="smooth deformation (B-spline control-point heights); unset: the heliostat's own",
     apply=lambda build, params: None, absent=zeroed("control_heights"),
     tensor=TensorRole("control_heights_mm", "control_heights", 0.002,
                       all_free("control_heights_mm", "control_heights"), without_planes),

@@ -33,8 +33,9 @@ def initial(params: dict, heliostat: Heliostat):
 
 
 EFFECT = Effect(
-    "tracking", 30, "kinematics", PARAMETERS, True,
-    "kinematic errors; unset parameters take the heliostat's true values", apply, zeroed("tracking_error"),
+    name="tracking", order=30, acts_on="kinematics", parameters=PARAMETERS, identifiable=True,
+    doc="kinematic errors; unset parameters take the heliostat's true values", apply=apply,
+    absent=zeroed("tracking_error"),
     tensor=TensorRole("tracking", "tracking_error", 0.01, initial),
     tried_as={p.name: FIT for p in PARAMETERS}, neutral={p.name: 0.0 for p in PARAMETERS},
     missing_text="a tracking error (kinematic offsets of the heliostat's axes)",
