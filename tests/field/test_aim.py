@@ -40,6 +40,19 @@ def test_whole_pixel_moves_shift_the_spot_exactly_and_conserve_its_power():
     assert float(gone.sum()) < 1e-6 * float(maps.sum())
 
 
+def test_patches_made_in_chunks_and_merged_render_as_the_whole_field():
+    """SpotPatches.merge (what the aim benchmark builds 10,000 heliostats with): the same map."""
+    maps = gaussians([(-2.0, 3.0), (0.0, 0.0), (5.0, -4.0)], 5.0, 1e5)
+    maps[1] = gaussians([(0.0, 0.0)], 12.0, 1e5)[0]  # another patch size: another group
+    whole = SpotPatches.from_maps(maps, (64, 64), PIXEL)
+    merged = SpotPatches.merge([SpotPatches.from_maps(maps[:2], (64, 64), PIXEL),
+                                SpotPatches.from_maps(maps[2:], (64, 64), PIXEL)])
+    offsets = torch.tensor([[0.1, -0.2], [0.0, 0.3], [-0.4, 0.05]], dtype=torch.float64)
+    assert merged.count == 3 and len(merged.groups) == len(whole.groups) == 2
+    assert torch.allclose(render(merged, offsets), render(whole, offsets))
+    assert torch.equal(merged.power_w(), whole.power_w())
+
+
 def test_a_spot_shifted_by_the_aim_matches_the_spot_traced_at_that_aim():
     """The premise of the optimiser: a heliostat 60 m out, aimed 0.8 m right and 0.6 m up of the
     receiver centre, puts the same spot there as its centre-aimed spot moved by that much."""
