@@ -307,7 +307,7 @@ def _aim_worker(n: int, threads: int, steps: int, queue) -> None:
     centre = torch.zeros(n, 2, dtype=torch.float32)
     before = float(render(spots, centre).max())
     start = time.perf_counter()
-    result = optimise(spots, centre, limit, steps=steps)
+    result = optimise(spots, centre, limit, region=1.0, steps=steps)
     seconds = time.perf_counter() - start
     patches = {g.shifted.shape[-1] - 1: len(g.members) for g in spots.groups}
     queue.put((setup, seconds, _rss_mb(), base, before / limit, result.peak_w_m2 / limit, result.feasible,

@@ -86,24 +86,24 @@ def test_the_optimiser_keeps_the_limit_and_the_power():
     spots = SpotPatches.from_maps(maps, (64, 64), PIXEL)
     start = torch.zeros(4, 2, dtype=torch.float64)
     assert float(render(spots, start).max()) > 3.9e5
-    result = optimise(spots, start, 1.6e5, steps=200)
+    result = optimise(spots, start, 1.6e5, region=0.8, steps=200)
     assert result.feasible and result.peak_w_m2 <= 1.6e5
     assert float(render(spots, result.offsets).max()) == pytest.approx(result.peak_w_m2)
     assert result.on_receiver_w > 0.99 * float(spots.power_w().sum())
-    assert float(result.offsets.abs().max()) <= 0.8 * 1.6 + 1e-12  # within the region (default 1.0: 1.6 m)
+    assert float(result.offsets.abs().max()) <= 0.8 * 1.6 + 1e-12  # within the region: 0.8 of the 1.6 m half side
 
 
 def test_an_aiming_that_keeps_the_limit_is_left_where_it_is():
     maps = gaussians([(0.0, -10.0), (0.0, 10.0)], 4.0, 1e5)
     spots = SpotPatches.from_maps(maps, (64, 64), PIXEL)
-    result = optimise(spots, torch.zeros(2, 2, dtype=torch.float64), 2e5, steps=50)
+    result = optimise(spots, torch.zeros(2, 2, dtype=torch.float64), 2e5, region=1.0, steps=50)
     assert result.feasible and torch.equal(result.offsets, torch.zeros(2, 2, dtype=torch.float64))
 
 
 def test_a_limit_below_one_spot_is_reported_unreachable_with_the_spots_apart():
     maps = gaussians([(0.0, 0.0)] * 2, 4.0, 1e5)
     spots = SpotPatches.from_maps(maps, (64, 64), PIXEL)
-    result = optimise(spots, torch.zeros(2, 2, dtype=torch.float64), 0.5e5, steps=150)
+    result = optimise(spots, torch.zeros(2, 2, dtype=torch.float64), 0.5e5, region=1.0, steps=150)
     assert not result.feasible
     assert result.peak_w_m2 < 1.05e5  # the two spots no longer overlap: one spot's peak is all that is left
 

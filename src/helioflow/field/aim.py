@@ -177,14 +177,12 @@ class AimResult:
         peak_w_m2: the peak flux of the model's map at those offsets (W/m^2).
         on_receiver_w: the model's power on the receiver (W).
         feasible: whether the model's map keeps the limit.
-        history: per step (peak W/m^2, power on the receiver W).
     """
 
     offsets: Tensor
     peak_w_m2: float
     on_receiver_w: float
     feasible: bool
-    history: list[tuple[float, float]]
 
 
 def optimise(
@@ -192,8 +190,8 @@ def optimise(
     start: Tensor,
     limit_w_m2: float,
     *,
-    region: float = 1.0,
-    steps: int = 300,
+    region: float,
+    steps: int,
     learning_rate_m: float | None = None,
     penalty: tuple[float, float] = (1.0, 1e6),
     seed: int = 0,
@@ -218,7 +216,7 @@ def optimise(
     )
     start = torch.max(torch.min(start.to(half), half), -half)
     pixel = torch.tensor(spots.pixel_m, dtype=half.dtype, device=half.device)
-    # the start itself is judged first; the descent begins from it moved by up to a pixel (seeded), for
+    # the start (to a pixel) is judged first; the descent begins from it moved by up to a pixel (seeded), for
     # heliostats of alike spots aimed alike get alike gradients and would never part
     jitter = torch.rand(start.shape, generator=torch.Generator().manual_seed(seed), dtype=half.dtype) * 2 - 1
     offsets = start.clone().requires_grad_(True)
@@ -229,14 +227,12 @@ def optimise(
     pixel_area = spots.pixel_m[0] * spots.pixel_m[1]
     total = float(spots.power_w().sum())
     growth = math.log(penalty[1] / penalty[0]) / max(steps - 1, 1)
-    history: list[tuple[float, float]] = []
     best: tuple[bool, Tensor, float, float] | None = None
     for step in range(steps + 1):
         with torch.no_grad():  # judged at whole-pixel moves, where the shifted spot is exact
             snapped = torch.round(offsets / pixel) * pixel
             judged = render(spots, snapped)
         peak, power = float(judged.max()), float(judged.sum()) * pixel_area
-        history.append((peak, power))
         feasible = peak <= limit_w_m2
         if best is None or _better(feasible, peak, power, best[0], best[2], best[3]):
             best = (feasible, snapped, peak, power)
@@ -257,7 +253,7 @@ def optimise(
             offsets.copy_(torch.max(torch.min(offsets, half), -half))
     assert best is not None
     feasible, chosen, peak, power = best
-    return AimResult(chosen, peak, power, feasible, history)
+    return AimResult(chosen, peak, power, feasible)
 
 
 def _better(feasible: bool, peak: float, power: float, best_feasible: bool, best_peak: float, best_power: float

@@ -6,7 +6,7 @@ receiver grid extended by the largest aim move (field.aim.SpotPatches), under th
 
     ideal   the model physics with every heliostat ideal (compose_field's ideal map, spot by spot)
     hybrid  the ideal spots, the measured heliostats' replaced by their learned spots carried to the
-            receiver (compose_field.measured_spots)
+            receiver (compose.learned_spots, compose.hybrid_spot)
     truth   the world physics with every heliostat's true errors: the oracle, an upper bound
 
 and field.aim.optimise chooses aim offsets on each. Every aiming -- `default` (field.aim) and the
@@ -43,7 +43,15 @@ from torch import Tensor
 from helioflow.device import resolve_device
 from helioflow.errors import ConfigError
 from helioflow.field.aim import SpotPatches, optimise
-from helioflow.field.compose import Scene, build_scene, load_calibration, measured_spots, trace_field, without_fit
+from helioflow.field.compose import (
+    Scene,
+    build_scene,
+    hybrid_spot,
+    learned_spots,
+    load_calibration,
+    trace_field,
+    without_fit,
+)
 from helioflow.field.figure import plot_aim_maps
 from helioflow.io import write_text_atomic
 from helioflow.physics.field import flat_receiver
@@ -80,16 +88,15 @@ def model_spots(
         measured=list(range(n)),
     )
     dni, cells = spec["dni_w_m2"], spec["cells_per_side"]
-    truth, world_optics = trace_field(centred, spec["world_effects"], scene.true, dni, cells, device)
+    truth, _ = trace_field(centred, spec["world_effects"], scene.true, dni, cells, device)
     ideal, model_optics = trace_field(
         centred, without_fit(spec["model_effects"]), [h.ideal() for h in scene.true], dni, cells, device
     )
     hybrid = ideal.asked_spots().clone()
-    optics = {"world": world_optics, "model": model_optics}
     for k, model_path, dataset_path in zip(scene.measured, model_paths, dataset_paths):
         cal = load_calibration(scene.names[k], model_path, dataset_path, device)
-        spots, _ = measured_spots(centred, k, k, cal, truth, ideal, optics, spec)
-        hybrid[:, k] = spots["hybrid"]
+        _, _, learned = learned_spots(centred, k, cal, spec)
+        hybrid[:, k] = hybrid_spot(centred, k, cal, learned, ideal, model_optics)
     return {"ideal": ideal.asked_spots(), "hybrid": hybrid, "truth": truth.asked_spots()}
 
 
@@ -186,6 +193,7 @@ def optimise_aim(
         scene.points, limit, (scene.receiver.width, scene.receiver.height),
         f"{len(scene.names)} heliostats, {len(scene.measured)} measured with {spec['network']}: true flux "
         f"under each aiming, limit {settings['limit_kw_m2']:g} kW/m²",
+        ("default", "hybrid"),
     )
     log.info("optimise_aim: %d heliostats, %d design points in %.1f s", len(scene.names), len(scene.points),
              result_json["seconds"])

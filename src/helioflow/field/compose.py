@@ -265,19 +265,10 @@ def _carry(images: Tensor, target: Target, scene: Scene, k: int, suns: Tensor, o
     )
 
 
-def measured_spots(
-    scene: Scene,
-    k: int,
-    j: int,
-    cal: Calibration,
-    truth: FieldFlux,
-    ideal: FieldFlux,
-    optics: dict[str, Optics],
-    spec: dict,
-) -> tuple[dict[str, Tensor], dict]:
-    """Heliostat k's (the j-th measured) spots {SPOTS: (S, H, W) W/m^2} and its details: equivalent
-    sun positions (deg), their angle to the nearest train image's sun (deg), and the reflected
-    power (W) the hybrid map books for it."""
+def learned_spots(scene: Scene, k: int, cal: Calibration, spec: dict) -> tuple[Tensor, Tensor, Tensor]:
+    """Heliostat k's learned spots on the calibration target at the equivalent sun of each design point:
+    (S, 3) equivalent sun vectors, (S, 2) their azimuth, elevation (rad), (S, Hc, Wc) flux (W/m^2);
+    ConfigError where an equivalent sun is below the horizon."""
     name, device = scene.names[k], scene.aims.device
     suns = sun_vector(scene.azimuth, scene.elevation)  # (S, 3)
     position = scene.true[k].position.to(suns)
@@ -295,7 +286,38 @@ def measured_spots(
         learned = cal.model.predict(
             torch.rad2deg(az).float().cpu(), torch.rad2deg(el).float().cpu(), generator
         )
-    learned = learned.to(device=device, dtype=torch.float64) * cal.scale
+    return equivalent, torch.stack((az, el), -1), learned.to(device=device, dtype=torch.float64) * cal.scale
+
+
+def hybrid_spot(scene: Scene, k: int, cal: Calibration, learned: Tensor, ideal: FieldFlux, optics: Optics) -> Tensor:
+    """(S, H, W) heliostat k's hybrid spot on the receiver (W/m^2): its learned target spots (S, Hc, Wc)
+    carried there with the model physics `optics`, times what the calibration never saw, from the
+    ideal field's budget (module docstring)."""
+    suns = sun_vector(scene.azimuth, scene.elevation)
+    position = scene.true[k].position.to(suns)
+    d_r, d_c = (scene.aims[k] - position).norm(), (cal.target.aim_point - position).norm()
+    factor = _factors(ideal, k, optics, optics, d_r, d_c)
+    return _carry(learned, cal.target, scene, k, suns, optics) * factor[:, None, None]
+
+
+def measured_spots(
+    scene: Scene,
+    k: int,
+    j: int,
+    cal: Calibration,
+    truth: FieldFlux,
+    ideal: FieldFlux,
+    optics: dict[str, Optics],
+    spec: dict,
+) -> tuple[dict[str, Tensor], dict]:
+    """Heliostat k's (the j-th measured) spots {SPOTS: (S, H, W) W/m^2} and its details: equivalent
+    sun positions (deg), their angle to the nearest train image's sun (deg), and the reflected
+    power (W) the hybrid map books for it."""
+    device = scene.aims.device
+    suns = sun_vector(scene.azimuth, scene.elevation)  # (S, 3)
+    position = scene.true[k].position.to(suns)
+    equivalent, az_el, learned = learned_spots(scene, k, cal, spec)
+    az, el = az_el.unbind(-1)
     calibration = resolve(cal.world_effects, scene.true[k], spec["dni_w_m2"])
     with torch.no_grad():
         true_target = trace(
@@ -310,7 +332,6 @@ def measured_spots(
             seed=spec["seed"],
         )
     d_r, d_c = (scene.aims[k] - position).norm(), (cal.target.aim_point - position).norm()
-    model_factor = _factors(ideal, k, optics["model"], optics["model"], d_r, d_c)
     truth_factor = _factors(truth, k, optics["world"], calibration.optics, d_r, d_c)
     normals = torch.stack([commanded_normal(position, scene.aims[k], s) for s in suns])
     incidence = (normals * suns).sum(-1) / (normals * equivalent).sum(-1)
@@ -319,13 +340,13 @@ def measured_spots(
     spots = {
         "truth": truth.asked_spots()[:, j],
         "ideal": ideal.asked_spots()[:, j],
-        "hybrid": _carry(learned, cal.target, scene, k, suns, optics["model"]) * model_factor[:, None, None],
+        "hybrid": hybrid_spot(scene, k, cal, learned, ideal, optics["model"]),
         "carried_truth": _carry(true_target, cal.target, scene, k, suns, optics["model"])
         * truth_factor[:, None, None],
     }
     nearest = torch.rad2deg(torch.acos((equivalent @ cal.train_sun.T).clamp(-1, 1).amax(-1)))
     details = {
-        "equivalent_sun_deg": torch.rad2deg(torch.stack((az, el), -1)).tolist(),
+        "equivalent_sun_deg": torch.rad2deg(az_el).tolist(),
         "nearest_calibration_deg": nearest.tolist(),
         "reflected_w": (learned_w * incidence * unshaded / _transmittance(optics["model"], d_c)).tolist(),
     }

@@ -96,6 +96,7 @@ def plot_aim_maps(
     limit_w_m2: float,
     receiver_size_m: tuple[float, float],
     title: str,
+    arrows: tuple[str, str],
 ) -> None:
     """Write rule optimise_aim's figure (PNG): per design point the true flux map under each aiming
     on one flux scale, the limit drawn as a contour, and the aim points on the receiver.
@@ -106,6 +107,7 @@ def plot_aim_maps(
         points: S design point names.
         limit_w_m2: the flux limit (W/m^2).
         receiver_size_m: (width, height) of the receiver (m).
+        arrows: (from, to): the two aimings whose aim points are joined by arrows.
     """
     names = list(maps)
     w, h = receiver_size_m
@@ -115,7 +117,6 @@ def plot_aim_maps(
     grid = fig.add_gridspec(len(points), len(names) + 3, width_ratios=[1] * len(names) + [0.06, 0.25, 1],
                             wspace=0.3, hspace=0.45)
     vmax = max(float(m.max()) for m in maps.values()) / 1e3 or 1.0
-    moved = names[-2] if len(names) > 2 else names[-1]
     for row, point in enumerate(points):
         for col, name in enumerate(names):
             ax, image = fig.add_subplot(grid[row, col]), maps[name][row]
@@ -134,13 +135,13 @@ def plot_aim_maps(
         for name, marker in zip(names, ("o", "x", "+", ".")):
             a = aims[name][row]
             ax.scatter(a[:, 0], a[:, 1], s=14, marker=marker, label=name)
-        start, chosen = aims[names[0]][row], aims[moved][row]
+        start, chosen = aims[arrows[0]][row], aims[arrows[1]][row]
         ax.quiver(start[:, 0], start[:, 1], chosen[:, 0] - start[:, 0], chosen[:, 1] - start[:, 1],
                   angles="xy", scale_units="xy", scale=1, width=0.004, color="0.4")
         ax.set_xlim(-w / 2, w / 2)
         ax.set_ylim(-h / 2, h / 2)
         ax.set_aspect("equal")
-        ax.set_title(f"aim points (arrows: {names[0]} → {moved})", fontsize=8)
+        ax.set_title(f"aim points (arrows: {arrows[0]} → {arrows[1]})", fontsize=8)
         ax.tick_params(labelsize=6)
         ax.legend(fontsize=6, loc="lower left")
     fig.suptitle(f"{title}; cyan: flux above the limit", fontsize=10)
