@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from helioflow.diagnosis.diagnose import compared_floor
+from helioflow.diagnosis.criteria import compared_floor
 from helioflow.models.registry import load_model
 
 

@@ -242,7 +242,7 @@ def cmd_optimise_aim(args) -> None:
     logging.info("wrote %s and %s in %.1f s", args.metrics, args.figure, result["seconds"])
 
 
-def _metrics(paths: list[str]) -> list[str]:
+def _metric_paths(paths: list[str]) -> list[str]:
     """--metrics: the files, or one @FILE of a spec with the list under "metrics" (workflow.rule_spec)."""
     return read_spec(paths[0])["metrics"] if len(paths) == 1 and paths[0].startswith("@") else paths
 
@@ -251,7 +251,7 @@ def cmd_table(args) -> None:
     """`helioflow table`: Table 1 from metrics files."""
     from helioflow.scoring.table import build_table
 
-    build_table(_metrics(args.metrics), args.csv, args.markdown)
+    build_table(_metric_paths(args.metrics), args.csv, args.markdown)
     logging.info("wrote %s and %s", args.csv, args.markdown)
 
 
@@ -259,7 +259,7 @@ def cmd_data_efficiency(args) -> None:
     """`helioflow data-efficiency`: PSNR against the number of training images."""
     from helioflow.scoring.efficiency import plot_data_efficiency
 
-    plot_data_efficiency(_metrics(args.metrics), args.figure, args.csv)
+    plot_data_efficiency(_metric_paths(args.metrics), args.figure, args.csv)
     logging.info("wrote %s and %s", args.figure, args.csv)
 
 

@@ -9,14 +9,10 @@ import pytest
 import torch
 
 from helioflow.diagnosis.candidates import candidates, implausible, separating
-from helioflow.diagnosis.diagnose import (
-    ROUNDING,
-    SIGNIFICANCE,
-    THRESHOLD,
-    Diagnosis,
-    update_ledger,
-    verdict,
-)
+from helioflow.diagnosis.criteria import SIGNIFICANCE, THRESHOLD
+from helioflow.diagnosis.diagnose import ROUNDING, Diagnosis
+from helioflow.diagnosis.ledger import update_ledger
+from helioflow.diagnosis.verdict import verdict
 from helioflow.models.physics_fit import FitSettings, Measurements
 from helioflow.physics.heliostat import Heliostat, ideal_heliostat, without_planes
 from helioflow.physics.scene import Scene
@@ -78,7 +74,7 @@ CASES = {
 @pytest.mark.parametrize("hidden", list(CASES))
 def test_a_hidden_effect_is_ranked_first_and_fitting_it_halves_the_heldout_error(hidden):
     world, model = CASES[hidden]
-    _, _, ranking, _, _ = diagnosis(world, model, max_effects=1).rank()  # the best single change
+    ranking = diagnosis(world, model, max_effects=1).rank().entries  # the best single change
     top = ranking[0]
     assert top["effect"] == hidden, [(r["effect"], round(r["relative_reduction"], 3)) for r in ranking]
     assert top["relative_reduction"] >= 0.5
@@ -91,7 +87,8 @@ def test_two_hidden_effects_take_the_top_two_places():
     alone, the flexible surface mimics both in part and wins; the best pair, both needed, beats it,
     and adding the two cuts the held-out error by at least half."""
     world = {"sunshape": BUIE, "tracking": {"axis2_offset_mrad": 2.5}, "canting": {}}
-    before, _, ranking, _, _ = diagnosis(world, {"sunshape": BUIE}).rank()
+    ranked = diagnosis(world, {"sunshape": BUIE}).rank()
+    before, ranking = ranked.before, ranked.entries
     summary = [(r["effect"], round(r["relative_reduction"], 3), r["meaningful"]) for r in ranking]
     assert {r["effect"] for r in ranking[:2]} == {"canting", "tracking"}, summary
     assert ranking[0]["meaningful"] and ranking[1]["meaningful"], summary
@@ -104,7 +101,7 @@ def test_a_model_that_matches_the_world_raises_no_alarm():
     """The measurements carry 2 % noise: fitting more parameters must not pass as a finding."""
     world = {"sunshape": BUIE, "slope_error": {"sigma_mrad": 1.0}}
     d = diagnosis(world, world, noise=0.02)
-    _, _, ranking, _, _ = d.rank()
+    ranking = d.rank().entries
     assert not any(r["meaningful"] for r in ranking), [(r["effect"], r["relative_reduction"]) for r in ranking]
     assert all(len(key) <= 1 for key in d.fits)  # no single change helps alone: no pair is fitted
     remaining = d.remaining([])  # what is left is the noise, and the noise floor says so
@@ -116,7 +113,7 @@ def test_scale_effects_are_not_identifiable_and_ranked_last():
     world = {"sunshape": BUIE, "reflectivity": {"value": 0.8}}
     d = diagnosis(world, {"sunshape": BUIE})
     d.tried = [c for c in d.tried if c.label in ("reflectivity", "slope_error")]
-    _, _, ranking, _, _ = d.rank()
+    ranking = d.rank().entries
     assert [r["effect"] for r in ranking] == ["slope_error", "reflectivity"]
     assert ranking[1]["identifiable"] is False and not ranking[1]["meaningful"]
     assert ranking[1]["fitted"]["value"] == pytest.approx(0.8, abs=0.01)  # the scale is still measured
@@ -183,7 +180,8 @@ def test_a_slope_error_and_a_wider_sun_are_confounded_by_their_correlation_with_
     the two parameters correlate almost fully, and the separating measurement names sun positions."""
     world = {"sunshape": {"kind": "gaussian", "sigma_mrad": 2.5}, "slope_error": {"sigma_mrad": 1.5}}
     d = diagnosis(world, {"sunshape": {"kind": "gaussian", "sigma_mrad": 2.5}}, noise=0.01)
-    _, _, ranking, _, selected = d.rank()
+    ranked = d.rank()
+    ranking, selected = ranked.entries, ranked.selected
     top = ranking[0]
     assert top["meaningful"] and top["changes"] in ("slope_error", "sunshape"), ranking[:2]
     partner = "sunshape: fit sigma_mrad" if top["changes"] == "slope_error" else "slope_error"
@@ -228,7 +226,8 @@ def test_a_slope_error_that_hardly_moves_the_misplaced_flux_is_named_by_its_fitt
                  **({"slope_error": {"sigma_mrad": slope}} if slope else {})}
         d = diagnosis(world, {"sunshape": BUIE, "camera": camera}, noise=0.02)
         d.tried = [c for c in d.tried if c.label in ("tracking", "slope_error", "canting", "soiling")]
-        _, _, ranking, _, selected = d.rank()
+        ranked = d.rank()
+        ranking, selected = ranked.entries, ranked.selected
         summary = [(r["effect"], round(r["relative_reduction"], 3), r["significance"]) for r in ranking]
         if not slope:
             assert selected == ["tracking"], summary

@@ -16,7 +16,8 @@ from support.independent import (
 from support.paint_world import World, write_paint_folder
 
 from helioflow.data.paint import import_paint
-from helioflow.diagnosis.diagnose import SIGNIFICANCE, THRESHOLD, diagnose_dataset
+from helioflow.diagnosis.criteria import SIGNIFICANCE, THRESHOLD
+from helioflow.diagnosis.diagnose import diagnose_dataset
 
 
 @pytest.mark.slow

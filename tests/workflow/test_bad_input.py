@@ -22,7 +22,7 @@ from helioflow.data.hdf5 import CalibrationDataset, write_dataset
 from helioflow.data.paint import import_paint
 from helioflow.data.surfaces import HeliostatSpec, true_heliostat, write_heliostat
 from helioflow.data.synthetic import trace_dataset
-from helioflow.diagnosis.diagnose import update_ledger
+from helioflow.diagnosis.ledger import update_ledger
 from helioflow.errors import HelioflowError
 from helioflow.io import save_torch_atomic, write_text_atomic
 from helioflow.models.registry import load_model

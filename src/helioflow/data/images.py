@@ -289,7 +289,7 @@ def sun_position(timestamps: list[datetime], site: dict) -> tuple[np.ndarray, np
     return azimuth, np.asarray(sun.alt.deg, dtype=float)
 
 
-def _number(csv_path: Path, line: int, row: dict, column: str) -> float:
+def _csv_number(csv_path: Path, line: int, row: dict, column: str) -> float:
     text = row[column]
     try:
         value = float(text)
@@ -318,8 +318,8 @@ def read_rows(csv_path: str | os.PathLike, images_dir: str | os.PathLike,
     _check_paths(csv_path, images_dir, ids)
     rows = [row for _, row in table]
     if angles:
-        az = np.array([_number(csv_path, line, row, AZIMUTH) for (line, _, _), row in zip(ids, rows)])
-        el = np.array([_number(csv_path, line, row, ELEVATION) for (line, _, _), row in zip(ids, rows)])
+        az = np.array([_csv_number(csv_path, line, row, AZIMUTH) for (line, _, _), row in zip(ids, rows)])
+        el = np.array([_csv_number(csv_path, line, row, ELEVATION) for (line, _, _), row in zip(ids, rows)])
         for (line, _, _), a in zip(ids, az):
             if not -180 <= a <= 360:
                 raise DataError(f"{csv_path} line {line}: {AZIMUTH} = {a:g}: expected degrees in [-180, 360] "
@@ -427,7 +427,7 @@ def import_images(spec: dict, dataset_path: str | os.PathLike | None = None,
     if dataset_path is None and heliostat_path is None:
         raise HelioflowError("import_images: nothing to write; give a dataset path, a heliostat path or both")
     geometry, source, heliostat_spec = read_geometry(spec)
-    ds = build_dataset(spec, geometry) if dataset_path is not None else None
+    ds = build_image_dataset(spec, geometry) if dataset_path is not None else None
     write_imported(dataset_path, ds, heliostat_path, geometry, heliostat_spec, source=source)
     return ds
 
@@ -443,7 +443,7 @@ def target_plane(target: dict, where: str = "target"):
                        float(target["width_m"]), float(target["height_m"]))
 
 
-def build_dataset(spec: dict, geometry):
+def build_image_dataset(spec: dict, geometry):
     """The CalibrationDataset of the images a spec names (resampled, each divided by its peak)."""
 
     csv_path = Path(spec["csv"])

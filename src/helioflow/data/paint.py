@@ -174,8 +174,8 @@ def field(data: dict, path: Path, key: str, kind: str = "number", where: str = "
             raise DataError(f"{path}: missing field {missing!r}")
         value = value[part]
     ok = {
-        "number": _is_number,
-        "vec3": lambda v: isinstance(v, list) and len(v) == 3 and all(_is_number(x) for x in v),
+        "number": _is_finite_number,
+        "vec3": lambda v: isinstance(v, list) and len(v) == 3 and all(_is_finite_number(x) for x in v),
         "string": lambda v: isinstance(v, str),
         "list": lambda v: isinstance(v, list),
         "object": lambda v: isinstance(v, dict),
@@ -187,7 +187,7 @@ def field(data: dict, path: Path, key: str, kind: str = "number", where: str = "
     return value
 
 
-def _is_number(v) -> bool:
+def _is_finite_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
@@ -688,7 +688,7 @@ def import_paint(
     ds = None
     if dataset_path is not None:
         spec = {"paint_dir": str(paint_dir), "targets": targets, "dni_w_m2": float(dni_w_m2), "centered": centered}
-        ds = build_dataset(measurements, tower, geometry, (resolution[0], resolution[1]), holdout, folder,
+        ds = build_paint_dataset(measurements, tower, geometry, (resolution[0], resolution[1]), holdout, folder,
                            dataset or heliostat, heliostat, spec)
         ds.attrs["neighbours_enu_m"] = neighbour_positions(paint_dir, tower, heliostat, geometry.position.numpy())
     write_imported(dataset_path, ds, heliostat_path, geometry, source=source)
@@ -737,7 +737,7 @@ def relative_flux_attrs(geometry: Heliostat, target: PlaneTarget, dni_w_m2: floa
     }
 
 
-def build_dataset(measurements: list[Measurement], tower: Tower, geometry: Heliostat,
+def build_paint_dataset(measurements: list[Measurement], tower: Tower, geometry: Heliostat,
                   resolution: tuple[int, int], holdout: Sequence[str] | dict, folder: Path, dataset: str,
                   heliostat: str, spec: dict) -> CalibrationDataset:
     """The CalibrationDataset of a heliostat's measurements (images resampled to `resolution`, centered

@@ -43,11 +43,10 @@ better fit is the noise of fitting more parameters.
 
 from __future__ import annotations
 
-import hashlib
 import itertools
 import json
 import logging
-import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -59,10 +58,22 @@ from helioflow.data.hdf5 import read_dataset
 from helioflow.data.noise import NoiseModel
 from helioflow.data.surfaces import read_heliostat
 from helioflow.device import resolve_device
-from helioflow.diagnosis.candidates import Candidate, candidates, implausible, separating
+from helioflow.diagnosis.candidates import Candidate, candidates, separating
+from helioflow.diagnosis.criteria import (
+    ABSOLUTE_FLOOR,
+    EXPLAINED,
+    MODEL_RESOLUTION,
+    NUMERICAL_FLOOR,
+    PARTLY,
+    SIGNIFICANCE,
+    THRESHOLD,
+    compared_floor,
+    is_meaningful,
+)
+from helioflow.diagnosis.ledger import model_hash, read_ledger, revised, write_ledger
 from helioflow.diagnosis.noise import measured_noise, noise_floor
 from helioflow.diagnosis.residuals import by_sun_position, in_image, on_mirror
-from helioflow.errors import DataError
+from helioflow.diagnosis.verdict import verdict
 from helioflow.io import write_text_atomic
 from helioflow.models.physics_fit import (
     FitResult,
@@ -83,8 +94,6 @@ log = logging.getLogger(__name__)
 ERROR_MEASURE = {"name": "misplaced_flux_fraction",
                  "description": "half the L1 distance of predicted and measured images, each divided by its own "
                                 "sum: the fraction of the spot's flux in the wrong place (0 = same shape)"}
-THRESHOLD = 0.25  # relative held-out error reduction a candidate needs to count
-ABSOLUTE_FLOOR = 0.002  # ... and absolute reduction of the misplaced flux fraction
 ROUNDING = 1e-3  # relative: a nested fit that ends no worse than its start up to this (float32 rounding of
 #                   a loss that is a small difference of large numbers) keeps its own values
 NOISE_METHOD = ("parametric bootstrap: the final model's held-out images re-noised with the noise measured in "
@@ -99,23 +108,8 @@ SEPARATING_IMAGES = 3  # sun positions named as the measurement that separates a
 SEPARATED = 0.8  # ... when they bring the pair's correlation below this; else the effects' own words
 SUN_GRID = [(az, el) for az in range(-120, 121, 40) for el in range(10, 81, 20)]  # where they are sought (deg)
 CORE_FRACTION = 0.05  # the sun-limited core: pixels where the model's spot exceeds this fraction of its peak
-EXPLAINED = 2.0  # a held-out error up to this many times `compared_floor` is explained down to the noise (what a
-#                  fitted model leaves beyond it: the nothing-hidden folders of scripts/experiments/error_rates.py
-#                  0.97-1.45 x, the independent cases with every hidden effect named up to 1.96 x)
 MIRROR_IMAGES = 48  # images (evenly picked) the mirror localisation traces, region by region
-NUMERICAL_FLOOR = 0.001  # misplaced flux below which a noise floor is not resolved by the diagnosis' fits
-MODEL_RESOLUTION = 0.002  # misplaced flux between the model's spot and an independent Monte Carlo of the same physics
-#                           on nearly noise-free 8-bit images (0.0020-0.0027, scripts/experiments/model_resolution.py):
-#                           the model's own mismatch, which no candidate removes; `compared_floor` adds it to the
-#                           noise's
-PARTLY = 0.1  # a best candidate that cuts an unexplained residual by this much is named as explaining part of it
 SWAP_NOISE = 0.5  # swapping a chosen change for another that ends within this fraction of the noise floor: alike
-SIGNIFICANCE = 1e-3  # a candidate's fitted parameters depart from their do-nothing values at this level (Wald test)
-
-
-def model_hash(effects: dict) -> str:
-    """Short hash of a model effect list's content: the ledger's key for a model revision."""
-    return hashlib.sha256(json.dumps(effects, sort_keys=True).encode()).hexdigest()[:10]
 
 
 def signatures(scene: Scene, pred: Tensor, meas: Tensor, slant_m: float) -> dict[str, np.ndarray]:
@@ -149,6 +143,17 @@ def _ellipse(images: Tensor, scene: Scene, c: Tensor) -> tuple[np.ndarray, np.nd
     values, vectors = torch.linalg.eigh(cov)
     angle = torch.rad2deg(torch.atan2(vectors[:, 1, 1], vectors[:, 0, 1])) % 180.0
     return (2 * values[:, 1].clamp_min(0).sqrt()).numpy(), (2 * values[:, 0].clamp_min(0).sqrt()).numpy(), angle.numpy()
+
+
+@dataclass
+class Ranking:
+    """The candidates ranked (`Diagnosis.rank`)."""
+
+    before: float  # the model's held-out error (misplaced flux)
+    model: FitResult  # the model's own fit
+    entries: list[dict]  # the ranking, best first: the selected candidates, then the rest
+    skipped: list[dict]  # effects not tested, and why
+    selected: list[str]  # the selected candidates' labels
 
 
 class Diagnosis:
@@ -387,9 +392,8 @@ class Diagnosis:
             return None
         return {"wald": round(wald, 2), "dof": dof, "p": float(f"{p:.3g}"), "determined": determined}
 
-    def rank(self) -> tuple[float, FitResult, list[dict], list[dict], list[str]]:
-        """(held-out error of the model, the model's fit, ranking best first, effects not tested,
-        the selected candidates).
+    def rank(self) -> Ranking:
+        """The candidates ranked (`Ranking`).
 
         The selected candidates first, in forward order (each entry's before/after is the held-out
         error without and with it, the candidates above it included), then the rest, each added
@@ -415,7 +419,7 @@ class Diagnosis:
                     c["correlation"] = round(found[0], 4)
                     c["separated_by"] = self.separating_images(found[1], r["effect"], c["effect"])
             r["confounded_with"] = alike
-        return before, self.fitted(())[1], ranking, self.skipped, selected
+        return Ranking(before, self.fitted(())[1], ranking, self.skipped, selected)
 
     def swapped(self, label: str, chosen: list[str]) -> list[dict]:
         """Candidates that can stand in for `label` among the chosen ones: the chosen set with
@@ -558,24 +562,9 @@ def heldout_error(scene: Scene, result: FitResult, heldout: Measurements) -> flo
     return float(misplaced_flux(pred, heldout.images, lost).mean())
 
 
-def compared_floor(noise_floor, measured: bool):
-    """What a model without a missing effect leaves (misplaced flux; a float or an array per image):
-    on `measured` images (not helioflow's own traces) the noise's floor and the model's own
-    resolution, MODEL_RESOLUTION, in quadrature (a systematic difference d and noise e leave a pixel
-    E|d + e|, which goes from E|e| at d = 0 to |d| at d >> e as sqrt(d^2 + E|e|^2) does; on noise
-    blurred over pixels the noise's floor falls to the model's resolution: docs/diagnosis.md,
-    "Error rates"); on helioflow's own traces the noise's floor. At least NUMERICAL_FLOOR."""
-    return np.maximum(np.hypot(noise_floor, MODEL_RESOLUTION if measured else 0.0), NUMERICAL_FLOOR)
-
-
 def is_measured(attrs: dict) -> bool:
     """Whether a dataset's images are measurements (PAINT, own camera images), not helioflow's own trace."""
     return not str(attrs.get("source", "")).startswith("synthetic")
-
-
-def is_meaningful(before: float, after: float) -> bool:
-    """Does going from held-out error `before` to `after` count as a finding (module doc)?"""
-    return after <= (1.0 - THRESHOLD) * before and before - after >= ABSOLUTE_FLOOR
 
 
 def config_line(candidate: Candidate, fit: FitResult) -> str:
@@ -611,109 +600,11 @@ def _summarised(values: dict) -> dict:
     return out
 
 
-def verdict(ranking: list[dict], summary: dict, remaining: dict, location: dict) -> str:
-    """One plain-language paragraph with one of three outcomes: the residual is explained down to
-    the noise; a registry effect is found (what, the evidence, how much fitting it helps, what it
-    is confounded with and how to tell them apart, implausible fitted values, the config line),
-    ending with what remains; or a residual well above the noise remains that no candidate
-    explains, with where it lives (`location`: by_sun_position, in_image, on_mirror)."""
-    meaningful = [r for r in ranking if r["meaningful"]]
-    if not meaningful:
-        error, ratio = remaining["error"], remaining["over_noise"]
-        if ranking:
-            best = ranking[0]
-            change = (f"cuts it by {best['relative_reduction']:.0%}" if best["relative_reduction"] > 0
-                      else "does not lower it")
-            tried = f"no change to the model cuts it by {THRESHOLD:.0%} or more (the best, {_words(best)}, {change})"
-        else:
-            tried = "no effect could be tested: the model contains every registry effect that applies here"
-        if remaining["explained"]:
-            return (f"Explained down to the noise: the model's held-out error (misplaced flux {error:.3f}) is "
-                    f"{ratio:.1f} times {_floor_words(remaining)}, and {tried}.")
-        partly = ranking and ranking[0]["relative_reduction"] >= PARTLY
-        hint = (f"{_words(ranking[0]).capitalize()} explains part of it; an effect the registry lacks may explain "
-                "the rest" if partly else "An effect the registry lacks is likely")
-        return (f"A residual {ratio:.1f} times the noise remains that no candidate explains: held-out misplaced flux "
-                f"{error:.3f}, {ratio:.1f} times {_floor_words(remaining)}, and {tried}. {_lives(location)} {hint}: "
-                "see docs/adding_an_effect.md.")
-    top = meaningful[0]
-    effect = top["changes"]
-    evidence = REGISTRY[effect].signature_text.format(**summary)
-    if top["change"] == "add":
-        lacks = f"The model lacks {REGISTRY[effect].missing_text}"
-    elif top["change"] == "switch":
-        lacks = f"The model's sun is not the one it assumes: a {top['effect'].split(': ')[1]} sun fits better"
-    else:
-        lacks = f"The model's fixed {effect.replace('_', ' ')} values are off ({top['effect']})"
-    text = (f"{lacks}: {evidence}; fitting it cuts the held-out error by {top['relative_reduction']:.0%} "
-            f"(misplaced flux {top['heldout_error_before']:.3f} -> {top['heldout_error_after']:.3f}).")
-    if len(meaningful) > 1:
-        others = ", ".join(f"{_words(r)} ({_cut_words(r)})" for r in meaningful[1:])
-        text += f" Also needed, each added to the changes before it: {others}."
-    for r in meaningful:
-        for c in r["confounded_with"]:
-            given = f"given {', '.join(g.replace('_', ' ') for g in c['given'])}" if c["given"] else "alone"
-            r_text = (f"; their parameters correlate at r = {c['correlation']:.2f} at the joint fit"
-                      if c.get("correlation") is not None else "")
-            text += (f" {_words(r).capitalize()} and {c['effect'].replace('_', ' ')} ({c['relative_reduction']:.0%} "
-                     f"{given}) explain the same residual on these images{r_text}: {c['separated_by']} would tell "
-                     f"them apart.")
-        for flag in implausible({f"{r['changes']}.{k}": v for k, v in r["fitted"].items()}):
-            text += f" The fitted {flag} is implausible: it likely stands in for another effect."
-    if remaining["explained"]:
-        text += (f" What remains (misplaced flux {remaining['error']:.3f}) is {remaining['over_noise']:.1f} times the "
-                 "noise: explained down to the noise.")
-    else:
-        text += (f" Even so, a residual {remaining['over_noise']:.1f} times the noise remains (misplaced flux "
-                 f"{remaining['error']:.3f}, against {_floor_words(remaining)}) that no candidate explains. "
-                 f"{_lives(location)}")
-    lines = "; ".join(f"`{r['config']}`" for r in meaningful)
-    return text + f" To add it, put under model.effects in config.yaml: {lines}; rerun, and look again."
-
-
-def _floor_words(remaining: dict) -> str:
-    """What the remaining error is compared with, in words."""
-    floor, resolution = remaining["noise_floor"], remaining["model_resolution"]
-    if resolution:
-        return (f"what noise and the model's own resolution leave ({float(compared_floor(floor, True)):.3f}: the noise "
-                f"{floor:.3f}, the model {resolution})")
-    if floor < NUMERICAL_FLOOR:
-        return (f"the diagnosis' numerical floor ({NUMERICAL_FLOOR}: these images hold almost no noise, "
-                f"{floor:.5f})")
-    return f"what noise alone leaves on these images ({floor:.3f})"
-
-
-def _lives(location: dict) -> str:
-    """Where the residual lives, in one sentence."""
-    parts = [f"against the sun, {location['sun_position']['where']}",
-             f"in the image, {location['image']['where']}", f"on the mirror, {location['mirror']['where']}"]
-    return "Where it lives: " + "; ".join(parts) + "."
-
-
 def _uncertainty(fit: FitResult) -> FitUncertainty:
     """The uncertainty of a fit that has one (physics_fit.with_uncertainty: `with_covariance`'s)."""
     if fit.uncertainty is None:
         raise ValueError("this fit has no uncertainty (physics_fit.with_uncertainty)")
     return fit.uncertainty
-
-
-def _words(entry: dict) -> str:
-    return entry["effect"].replace("_", " ")
-
-
-def _cut_words(entry: dict) -> str:
-    """How much a needed change cuts the held-out error, and, when it was named for its fitted values
-    (`named_for`), how far the images put them from doing nothing (the Wald test) and whether the
-    covariance determines them."""
-    cut = f"{entry['relative_reduction']:.0%}"
-    if entry.get("named_for") != "significance":
-        return cut
-    test = entry["significance"]
-    caveat = ("" if test["determined"] else "; the residual is structured, so the covariance does not determine "
-              "its value: it may stand in for what the model lacks")
-    return (f"{cut}, too little to count alone, but its fitted values stand away from doing nothing at "
-            f"p = {test['p']:.1g} (Wald {test['wald']:.1f}, {test['dof']} degree{'s' * (test['dof'] > 1)} of "
-            f"freedom{caveat})")
 
 
 def summarise(sig: dict[str, np.ndarray]) -> dict:
@@ -723,45 +614,6 @@ def summarise(sig: dict[str, np.ndarray]) -> dict:
             "width": f"{abs(ratio - 1):.1%} " + ("wider" if ratio >= 1 else "narrower"),
             "width_ratio": ratio, "outside": float(np.median(sig["energy_outside_core"])),
             "ratio": float(np.median(sig["energy_ratio"]))}
-
-
-def read_ledger(path: str | os.PathLike) -> list[dict]:
-    """The revisions in the ledger at `path` (none when it does not exist yet); DataError names the
-    file when it is not a ledger. Read before the fits, so that a broken ledger costs no run."""
-    path = Path(path)
-    if not path.exists():
-        return []
-    try:
-        entries = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DataError(f"{path}: not a readable ledger (JSON list of model revisions): {exc}; "
-                        "repair it or delete it to start a new ledger") from None
-    keys = ("revision", "model_hash", "dataset_hash", "model_effects", "heldout_error")
-    if not isinstance(entries, list) or not all(isinstance(e, dict) and all(k in e for k in keys) for e in entries):
-        raise DataError(f"{path}: expected a JSON list of model revisions, each with {', '.join(keys)}; "
-                        "repair it or delete it to start a new ledger")
-    return entries
-
-
-def update_ledger(path: str | os.PathLike, dataset_hash: str, effects: dict, error: float) -> list[dict]:
-    """Record the held-out error of this model revision in the ledger at `path` (JSON list, kept
-    across runs: not a rule output) and return the revisions on the same measurements, oldest
-    first, the newest marked `current`. A rerun of the newest revision (same model effect list)
-    replaces it; any other model, one tried before included (going back), is a new revision."""
-    entries = read_ledger(path)
-    key = model_hash(effects)
-    same = [e for e in entries if e["dataset_hash"] == dataset_hash]
-    if same and same[-1]["model_hash"] == key:
-        entry = same[-1]
-    else:
-        entry = {"revision": len(same) + 1, "model_hash": key, "dataset_hash": dataset_hash, "model_effects": effects}
-        entries.append(entry)
-        same.append(entry)
-    entry["heldout_error"] = error
-    for e in same:
-        e["current"] = e is entry
-    write_text_atomic(path, json.dumps(entries, indent=1))
-    return same
 
 
 OWN_HOLDOUT_EVERY = 4  # a dataset that holds no images out: the diagnosis holds out every 4th training image
@@ -796,22 +648,55 @@ def _measurements(ds, index: np.ndarray, scale: float, device: str | torch.devic
                         torch.as_tensor(ds.elevation_deg[index]).float().to(device), scale)
 
 
+@dataclass
+class DiagnosisResult:
+    """What `diagnose` finds: the record diagnosis/{dataset}.json holds, the ledger with this
+    revision recorded (every entry, for `write_diagnosis`), and the images the figures show."""
+
+    record: dict
+    ledger: list[dict]
+    predicted: np.ndarray  # (N, H, W) the model's images of every measurement, in the measurements' scale
+    measured: np.ndarray  # (N, H, W) the measurements over the training images' peak
+    error: np.ndarray  # (N,) the model's misplaced flux per image
+
+
 def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict, output_json, figures: dict | None,
                      ledger_path, device: str | torch.device = "cpu", plant: str = "") -> dict:
-    """The `diagnose` rule: diagnosis/{dataset}.json and its figures (keys of `figures`:
-    signatures, ranking, residuals, location, ledger; None: none drawn).
+    """The `diagnose` rule: diagnosis/{dataset}.json (its record returned), its figures (keys of
+    `figures`: signatures, ranking, residuals, location, ledger; None: none drawn) and the ledger at
+    `ledger_path`; the arguments as `diagnose`'s. A broken ledger stops the rule before the fits."""
+    ds = read_dataset(dataset_path)
+    result = diagnose(ds, heliostat_path, effects, settings, read_ledger(ledger_path), device, plant,
+                      name=Path(dataset_path).stem)
+    write_diagnosis(result, ds, output_json, figures, ledger_path)
+    return result.record
+
+
+def write_diagnosis(result: DiagnosisResult, ds, output_json, figures: dict | None, ledger_path) -> None:
+    """Write `diagnose`'s result: the figures (`figures`' paths; None: none), the ledger, then the JSON."""
+    if figures is not None:
+        from helioflow.diagnosis.figures import plot_diagnosis
+
+        plot_diagnosis(result.record, ds, result.predicted, result.measured, result.error, figures)
+    write_ledger(ledger_path, result.ledger)
+    write_text_atomic(output_json, json.dumps(result.record, indent=1))
+    log.info("verdict: %s", result.record["verdict"])
+
+
+def diagnose(ds, heliostat_path, effects: dict, settings: dict, ledger: list[dict], device: str | torch.device = "cpu",
+             plant: str = "", name: str = "dataset") -> DiagnosisResult:
+    """Diagnose the dataset `ds` (data.hdf5.CalibrationDataset) against the model `effects` of the
+    heliostat at `heliostat_path` (the module doc); nothing is written.
 
     Args:
         effects: the model's effect list for this dataset.
         settings: fit_images, heldout_images, fit_steps, rounds, cells_per_side, fit_rays, max_effects.
+        ledger: the ledger's entries so far (ledger.read_ledger); this revision is recorded in them.
         device: where the fits run (cpu | cuda | auto).
         plant: a plant's heliostat: its plant entry, whose shared effects `effects` holds at the
             plant fit's values (diagnosis.shared.with_plant); no change to them is tried.
+        name: the dataset's name where its attributes hold none (its file's stem).
     """
-    from helioflow.diagnosis.figures import plot_diagnosis
-
-    ds = read_dataset(dataset_path)
-    read_ledger(ledger_path)  # a broken ledger stops the rule before the fits, not after them
     train_index, heldout_index, heldout = scoring_split(ds)
     scale = float(ds.images[train_index].max())
     def pick(index, n):
@@ -826,7 +711,8 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
                           _measurements(ds, pick(train_index, settings["fit_images"]), scale, device),
                           _measurements(ds, pick(heldout_index, settings["heldout_images"]), scale, device), fit,
                           settings["max_effects"], plant=plant, measured=is_measured(ds.attrs))
-    before, model, ranking, skipped, chosen = diagnosis.rank()
+    ranked = diagnosis.rank()
+    before, model, ranking, chosen = ranked.before, ranked.model, ranked.entries, ranked.selected
     remaining = diagnosis.remaining(chosen)
     final = with_uncertainty(fit_scene, diagnosis.fitted(chosen)[1], diagnosis.train, "shape")
     everything = _measurements(ds, np.arange(len(ds.images)), scale)
@@ -855,9 +741,9 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
                 "mirror": on_mirror(fit_scene, final.effects, final.tensors, sun[0][at.to(sun[0].device)],
                                     sun[1][at.to(sun[1].device)], everything.images[at].to(device),
                                     over_noise[few] > EXPLAINED)}
-    ledger = update_ledger(ledger_path, str(ds.attrs.get("config_hash", Path(dataset_path).stem)), effects, before)
+    ledger, revisions = revised(ledger, str(ds.attrs.get("config_hash", name)), effects, before)
     result = {
-        "dataset": ds.attrs.get("dataset", Path(dataset_path).stem),
+        "dataset": ds.attrs.get("dataset", name),
         "model_effects": effects,
         "plant": plant or None,
         "model_hash": model_hash(effects),
@@ -876,7 +762,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
                            if remaining["noise_floor"] < NUMERICAL_FLOOR and not diagnosis.measured else ""),
         "model_fitted": _summarised(model.fitted_values()),
         "ranking": ranking,
-        "not_tested": skipped,
+        "not_tested": ranked.skipped,
         "signatures": {"rms_centroid_offset_mrad": summary["centroid"], "median_width_ratio": summary["width_ratio"],
                        "median_energy_ratio": summary["ratio"], "median_energy_outside_core": summary["outside"],
                        "note": ("images each normalised to their own peak: no energy ratio between measured and "
@@ -890,11 +776,7 @@ def diagnose_dataset(dataset_path, heliostat_path, effects: dict, settings: dict
         "uncertainty": {"changes": chosen, **_uncertainty(final).as_json()},
         "location": location,
         "verdict": (heldout["note"] + " " if heldout["note"] else "") + verdict(ranking, summary, remaining, location),
-        "ledger": ledger,
+        "ledger": revisions,
     }
-    if figures is not None:
-        error = misplaced_flux(pred, everything.images, lost).numpy()
-        plot_diagnosis(result, ds, pred.numpy(), everything.images.numpy(), error, figures)
-    write_text_atomic(output_json, json.dumps(result, indent=1))
-    log.info("verdict: %s", result["verdict"])
-    return result
+    return DiagnosisResult(result, ledger, pred.numpy(), everything.images.numpy(),
+                           misplaced_flux(pred, everything.images, lost).numpy())

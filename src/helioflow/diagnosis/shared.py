@@ -39,7 +39,7 @@ a slope error, a canting or a tracking error is each heliostat's own. The plant 
    from it; at the clipped level true slope errors fit low and the plants' diagnoses named 27 and 26
    of 30 right, at the envelope 29 and 27: docs/results.md).
 5. A change is shared when it cuts the plant's held-out error (the mean over the heliostats of the
-   misplaced flux fraction on their held-out images) meaningfully (diagnose.is_meaningful); the
+   misplaced flux fraction on their held-out images) meaningfully (criteria.is_meaningful); the
    best one, then the best with one more change of another shared effect, as long as each step
    counts.
 6. Each shared value carries its sigma, from two sources added in quadrature. Statistical: the
@@ -95,7 +95,8 @@ from helioflow.data.splits import evenly
 from helioflow.data.surfaces import read_heliostat
 from helioflow.device import resolve_device
 from helioflow.diagnosis.candidates import Candidate, candidates
-from helioflow.diagnosis.diagnose import _measurements, heldout_error, is_meaningful, scoring_split
+from helioflow.diagnosis.criteria import is_meaningful
+from helioflow.diagnosis.diagnose import _measurements, heldout_error, scoring_split
 from helioflow.errors import DataError
 from helioflow.io import write_text_atomic
 from helioflow.models.physical import drt_effects
@@ -166,7 +167,7 @@ class Level:
     def of(cls, values: list[float], sigmas: list[float]) -> Level:
         """The level of `values` (each heliostat's own, with its marginal `sigmas`): their lower
         envelope, beside the one-sided clipping's level and the heliostats it kept."""
-        v, s = np.asarray(values, float), weighted(sigmas)
+        v, s = np.asarray(values, float), weighting_sigmas(sigmas)
         clipped, kept = clipped_level(v, s)
         chi2 = float((((v[kept] - clipped) / s[kept]) ** 2).sum() / max(kept.sum() - 1, 1))
         kept_sigma = float((1.0 / s[kept] ** 2).sum() ** -0.5 * math.sqrt(max(chi2, 1.0)))
@@ -179,7 +180,7 @@ class Level:
         """The larger of the kept heliostats' sigma and the spread of the envelope over the heliostats
         resampled (BOOTSTRAP draws: which heliostats happen to carry a widening of their own moves it
         more than their noise does). A few seconds: computed for the values the plant fit reports."""
-        v, s = np.asarray(self.values), weighted(self.sigmas)
+        v, s = np.asarray(self.values), weighting_sigmas(self.sigmas)
         draws = np.random.default_rng(0).integers(0, len(v), (BOOTSTRAP, len(v)))
         resampled = [lower_envelope(v[d], s[d], start=self.optimum)[0] for d in draws]
         return max(self.kept_sigma, float(np.std(resampled)))
@@ -195,7 +196,7 @@ class Level:
         return math.hypot(self.statistical, self.systematic)
 
 
-def weighted(sigmas: list[float]) -> np.ndarray:
+def weighting_sigmas(sigmas: list[float]) -> np.ndarray:
     """Heliostats' marginal sigmas (n,) for weighting: a value not determined (sigma nan or 0) gets
     their median, not infinite weight (nor none: it still counts as one heliostat)."""
     s = np.asarray(sigmas, float)
@@ -260,7 +261,7 @@ class RangeTest:
     def of(cls, blur: Level, ranges_m: list[float], pixel_m: float) -> RangeTest:
         """The line b_i^2 = b^2 + delta (r_i / p)^2 through the heliostats' own blurs (`blur`, the
         camera's level), from the level's kept set, clipped from above until the kept set repeats."""
-        b, s = np.asarray(blur.values, float), weighted(blur.sigmas)
+        b, s = np.asarray(blur.values, float), weighting_sigmas(blur.sigmas)
         y, sy = b ** 2, 2.0 * np.abs(b) * s
         x = (np.asarray(ranges_m, float) * 1e-3 / pixel_m) ** 2  # px^2 per mrad^2
         design = np.stack([np.ones_like(x), x], 1) / sy[:, None]
@@ -355,7 +356,7 @@ class PlantFit:
 
     def select(self, max_changes: int) -> list[str]:
         """The shared changes the plant needs: the best that counts alone, then the best with one
-        more change of another shared effect while it counts (diagnose.is_meaningful)."""
+        more change of another shared effect while it counts (criteria.is_meaningful)."""
         chosen: list[str] = []
         for _ in range(max_changes):
             effects = {self.candidate[c].effect for c in chosen}

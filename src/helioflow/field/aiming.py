@@ -44,7 +44,7 @@ from helioflow.device import resolve_device
 from helioflow.errors import ConfigError
 from helioflow.field.aim import SpotPatches, optimise
 from helioflow.field.compose import (
-    Scene,
+    FieldScene,
     build_scene,
     hybrid_spot,
     learned_spots,
@@ -77,7 +77,7 @@ def extended_receiver(receiver: Target, region: float) -> Target:
 
 
 def model_spots(
-    spec: dict, scene: Scene, region: float, model_paths: list[str], dataset_paths: list[str],
+    spec: dict, scene: FieldScene, region: float, model_paths: list[str], dataset_paths: list[str],
     device: torch.device,
 ) -> dict[str, Tensor]:
     """{model: (S, N, He, We) W/m^2} every heliostat's spot aimed at the receiver centre on the
@@ -100,7 +100,7 @@ def model_spots(
     return {"ideal": ideal.asked_spots(), "hybrid": hybrid, "truth": truth.asked_spots()}
 
 
-def judge(scene: Scene, spec: dict, point: int, aims: Tensor, limit_w_m2: float, device: torch.device
+def judge(scene: FieldScene, spec: dict, point: int, aims: Tensor, limit_w_m2: float, device: torch.device
           ) -> tuple[dict[str, float], np.ndarray]:
     """The true field at design point `point` aimed at `aims` ((N, 3) ENU, m): the truth_* metrics
     of aim.json and the (H, W) true flux map (W/m^2)."""

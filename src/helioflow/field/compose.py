@@ -93,7 +93,7 @@ def without_fit(effects: dict) -> dict:
 
 
 @dataclass
-class Scene:
+class FieldScene:
     """The field: N heliostats, S design points, M measured heliostats.
 
     Attributes:
@@ -113,7 +113,7 @@ class Scene:
     measured: list[int]
 
 
-def build_scene(spec: dict, device: torch.device) -> Scene:
+def build_scene(spec: dict, device: torch.device) -> FieldScene:
     """The field of a compose_field spec (helioflow.workflow.compose_field_params)."""
     h = spec["heliostats"]
     true = [
@@ -136,7 +136,7 @@ def build_scene(spec: dict, device: torch.device) -> Scene:
         torch.tensor([math.radians(spec["sun"][p][k]) for p in points], dtype=torch.float64, device=device)
         for k in ("azimuth_deg", "elevation_deg")
     )
-    return Scene(
+    return FieldScene(
         h["names"],
         true,
         receiver,
@@ -149,7 +149,7 @@ def build_scene(spec: dict, device: torch.device) -> Scene:
 
 
 def trace_field(
-    scene: Scene, effects: dict, heliostats: list[Heliostat], dni: float, cells: int, device: torch.device,
+    scene: FieldScene, effects: dict, heliostats: list[Heliostat], dni: float, cells: int, device: torch.device,
     slope_error: dict[int, float] | None = None,
 ) -> tuple[FieldFlux, Optics]:
     """The field's flux maps and budgets (spots of the measured heliostats included) under one
@@ -252,7 +252,7 @@ def _factors(flux: FieldFlux, k: int, optics_r: Optics, optics_c: Optics, d_r: T
     return unshaded * unblocked * _transmittance(optics_r, d_r) / _transmittance(optics_c, d_c)
 
 
-def _carry(images: Tensor, target: Target, scene: Scene, k: int, suns: Tensor, optics: Optics) -> Tensor:
+def _carry(images: Tensor, target: Target, scene: FieldScene, k: int, suns: Tensor, optics: Optics) -> Tensor:
     """(S, H, W) the target images (S, Hc, Wc) of heliostat k carried to the receiver, with the beam
     spread of `optics` (the model physics) for the blur the longer path adds."""
     position = scene.true[k].position.to(suns)
@@ -265,7 +265,7 @@ def _carry(images: Tensor, target: Target, scene: Scene, k: int, suns: Tensor, o
     )
 
 
-def learned_spots(scene: Scene, k: int, cal: Calibration, spec: dict) -> tuple[Tensor, Tensor, Tensor]:
+def learned_spots(scene: FieldScene, k: int, cal: Calibration, spec: dict) -> tuple[Tensor, Tensor, Tensor]:
     """Heliostat k's learned spots on the calibration target at the equivalent sun of each design point:
     (S, 3) equivalent sun vectors, (S, 2) their azimuth, elevation (rad), (S, Hc, Wc) flux (W/m^2);
     ConfigError where an equivalent sun is below the horizon."""
@@ -289,7 +289,8 @@ def learned_spots(scene: Scene, k: int, cal: Calibration, spec: dict) -> tuple[T
     return equivalent, torch.stack((az, el), -1), learned.to(device=device, dtype=torch.float64) * cal.scale
 
 
-def hybrid_spot(scene: Scene, k: int, cal: Calibration, learned: Tensor, ideal: FieldFlux, optics: Optics) -> Tensor:
+def hybrid_spot(scene: FieldScene, k: int, cal: Calibration, learned: Tensor, ideal: FieldFlux,
+                optics: Optics) -> Tensor:
     """(S, H, W) heliostat k's hybrid spot on the receiver (W/m^2): its learned target spots (S, Hc, Wc)
     carried there with the model physics `optics`, times what the calibration never saw, from the
     ideal field's budget (module docstring)."""
@@ -301,7 +302,7 @@ def hybrid_spot(scene: Scene, k: int, cal: Calibration, learned: Tensor, ideal: 
 
 
 def measured_spots(
-    scene: Scene,
+    scene: FieldScene,
     k: int,
     j: int,
     cal: Calibration,
@@ -404,7 +405,7 @@ def compose_field(
     }
     maps = {m: v.cpu().numpy() for m, v in flux.items()}
     spots = {s: v.cpu().numpy() for s, v in stacked.items()}
-    metrics = _metrics(scene, spec, truth, ideal, maps, spots, details)
+    metrics = _field_metrics(scene, spec, truth, ideal, maps, spots, details)
     metrics["seconds"] = round(time.perf_counter() - start, 2)
     write_flux(flux_path, scene, spec, maps, spots, details, {"truth": truth, "ideal": ideal})
     write_text_atomic(metrics_path, json.dumps(metrics, indent=2) + "\n")
@@ -431,8 +432,8 @@ def compose_field(
     return metrics
 
 
-def _metrics(
-    scene: Scene, spec: dict, truth: FieldFlux, ideal: FieldFlux, maps: dict, spots: dict, details: list[dict]
+def _field_metrics(
+    scene: FieldScene, spec: dict, truth: FieldFlux, ideal: FieldFlux, maps: dict, spots: dict, details: list[dict]
 ) -> dict:
     """The contents of metrics.json (see compose_field)."""
     pixel = scene.receiver.pixel_size
@@ -488,7 +489,7 @@ def _metrics(
 
 def write_flux(
     path: str | os.PathLike,
-    scene: Scene,
+    scene: FieldScene,
     spec: dict,
     maps: dict,
     spots: dict,

@@ -49,7 +49,7 @@ from helioflow.data.paint import PROPERTIES_FILE, Tower, read_heliostat_properti
 from helioflow.data.synthetic import config_hash
 from helioflow.device import resolve_device
 from helioflow.errors import DataError
-from helioflow.field.compose import Scene, aim_points, trace_field, without_fit
+from helioflow.field.compose import FieldScene, aim_points, trace_field, without_fit
 from helioflow.field.figure import plot_field_maps
 from helioflow.field.metrics import map_metrics, mean_metrics
 from helioflow.io import write_text_atomic
@@ -155,13 +155,13 @@ def compose_plant(spec: dict, flux_path: str | os.PathLike, figure_path: str | o
     az, el = (torch.tensor([math.radians(settings["sun"][p][k]) for p in points], dtype=torch.float64, device=device)
               for k in ("azimuth_deg", "elevation_deg"))
     calibrated = sorted(names.index(c["heliostat"]) for c in spec["calibrated"])
-    scene = Scene(names, design, receiver, aim_points(receiver, settings["aim"], len(names)), points, az, el,
+    scene = FieldScene(names, design, receiver, aim_points(receiver, settings["aim"], len(names)), points, az, el,
                   calibrated)
     effects, left_out = map_effects({**spec["effects"], **settings["effects"]})
     dni, cells = spec["dni_w_m2"], settings["cells_per_side"]
     traced = {"ideal": trace_field(scene, effects, design, dni, cells, device)[0],
               "calibrated": trace_field(scene, effects, fitted, dni, cells, device, slopes)[0]}
-    metrics = _metrics(scene, settings, traced, left_out, effects)
+    metrics = _plant_metrics(scene, settings, traced, left_out, effects)
     metrics["seconds"] = round(time.perf_counter() - start, 2)
     write_plant_flux(flux_path, scene, spec, traced, effects)
     write_text_atomic(metrics_path, json.dumps(metrics, indent=2) + "\n")
@@ -177,7 +177,8 @@ def compose_plant(spec: dict, flux_path: str | os.PathLike, figure_path: str | o
     return metrics
 
 
-def _metrics(scene: Scene, settings: dict, traced: dict[str, FieldFlux], left_out: dict, effects: dict) -> dict:
+def _plant_metrics(scene: FieldScene, settings: dict, traced: dict[str, FieldFlux], left_out: dict,
+                   effects: dict) -> dict:
     """The contents of flux.json (module docstring)."""
     receiver = scene.receiver
     pixel, area = receiver.pixel_size, receiver.pixel_area
@@ -225,7 +226,7 @@ def _metrics(scene: Scene, settings: dict, traced: dict[str, FieldFlux], left_ou
     }
 
 
-def write_plant_flux(path: str | os.PathLike, scene: Scene, spec: dict, traced: dict[str, FieldFlux],
+def write_plant_flux(path: str | os.PathLike, scene: FieldScene, spec: dict, traced: dict[str, FieldFlux],
                      effects: dict) -> None:
     """flux.h5 (schema helioflow.plant_flux/1):
 

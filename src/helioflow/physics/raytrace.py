@@ -197,7 +197,7 @@ def trace(
     generator = torch.Generator(device="cpu").manual_seed(seed)
     images, launched = [], []
     if mirror_weight is not None:
-        optics = replace(optics, mirror_mask=weighted(optics.mirror_mask, mirror_weight))
+        optics = replace(optics, mirror_mask=weighted_mask(optics.mirror_mask, mirror_weight))
     samples = [sample_surface(h, cells_per_side) for h in heliostats]  # once, not per sun batch
     per_batch = _sun_chunk(heliostats, cells_per_side)
     for start in range(0, len(sun), per_batch):
@@ -226,7 +226,7 @@ def _sun_chunk(heliostats: Sequence[Heliostat], cells_per_side: int) -> int:
     return max(1, 2**24 // (25 * points))
 
 
-def weighted(mask: Callable[[MirrorPoints], Tensor] | None, weight: Tensor) -> Callable[[MirrorPoints], Tensor]:
+def weighted_mask(mask: Callable[[MirrorPoints], Tensor] | None, weight: Tensor) -> Callable[[MirrorPoints], Tensor]:
     """The mirror mask `mask` (None: none) times a fixed (P,) weight of the surface points."""
 
     def masked(points: MirrorPoints) -> Tensor:

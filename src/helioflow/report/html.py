@@ -111,7 +111,7 @@ def fmt(value) -> str:
 
 def _summary(values: list) -> str:
     """'200 values, 0.1 … 4.3' for numbers, '200 values: train 150, interpolation 50' for text."""
-    numbers = [v for v in values if _is_number(v)]
+    numbers = [v for v in values if _reads_as_number(v)]
     if len(numbers) == len(values):
         return f"{len(values)} values, {fmt(float(min(numbers)))} … {fmt(float(max(numbers)))}"
     counts = Counter(map(str, values))
@@ -120,7 +120,7 @@ def _summary(values: list) -> str:
     return f"{len(values)} values: " + ", ".join(f"{k} {n}" for k, n in counts.items())
 
 
-def _is_number(value) -> bool:
+def _reads_as_number(value) -> bool:
     """A number, or text that reads as one (pre-formatted cells such as '2.50' or '80 %')."""
     if isinstance(value, str):
         return re.fullmatch(r"-?\d[\d.,]*( %)?", value) is not None
@@ -131,7 +131,7 @@ def table(header: list[str], rows: list[list], total: list | None = None) -> str
     """An HTML table; numbers (and text that reads as one) right-aligned; `total` is an
     emphasised last row."""
     def row(cells, cls=""):
-        tds = "".join(f'<td class="num">{esc(fmt(c))}</td>' if _is_number(c) else f"<td>{esc(fmt(c))}</td>"
+        tds = "".join(f'<td class="num">{esc(fmt(c))}</td>' if _reads_as_number(c) else f"<td>{esc(fmt(c))}</td>"
                       for c in cells)
         return f"<tr{cls}>{tds}</tr>"
 
@@ -172,7 +172,7 @@ def markdown(text: str) -> str:
 
 def fixed(value, digits: int):
     """A number as text with `digits` decimals (a column reads evenly); anything else as it is."""
-    return f"{value:.{digits}f}" if _is_number(value) and not isinstance(value, str) else value
+    return f"{value:.{digits}f}" if _reads_as_number(value) and not isinstance(value, str) else value
 
 
 def figures_by_name(paths: list[str]) -> dict[str, str]:

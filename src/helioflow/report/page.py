@@ -231,8 +231,8 @@ def _leave_one_out_section(files: dict[str, list[str]]) -> str:
         if not records or any(k not in records[0] for k in keys):
             raise DataError(f"{path}: not a leave-one-out CSV (written by `leave-one-out`): needs columns "
                             f"{', '.join(keys)}")
-        rows = [[r["id"], r["network"], fixed(_number(r["psnr"]), 2), fixed(_number(r["centroid_mrad"]), 2),
-                 fixed(_number(r["misplaced_flux"]), 3)] for r in records]
+        rows = [[r["id"], r["network"], fixed(_cell_number(r["psnr"]), 2), fixed(_cell_number(r["centroid_mrad"]), 2),
+                 fixed(_cell_number(r["misplaced_flux"]), 3)] for r in records]
         parts += [f"<h3>Held-out scores: {esc(name)}</h3>",
                   table(["held-out id", "network", "PSNR (dB)", "centroid error (mrad)", "misplaced flux"], rows)]
     return "\n".join(parts)
@@ -263,7 +263,7 @@ def _plant_section(files: dict[str, list[str]]) -> str:
         summary = [["heliostats", len(records)],
                    ["off: pointing beyond the limit, a residual unexplained or an own widening unnamed", len(off)],
                    *[[f"named: {effect}", count] for effect, count in sorted(named.items(), key=lambda kv: -kv[1])]]
-        worst = sorted(records, key=lambda r: -(_number(r["pointing_error_mrad"]) or 0.0))[:PLANT_WORST]
+        worst = sorted(records, key=lambda r: -(_cell_number(r["pointing_error_mrad"]) or 0.0))[:PLANT_WORST]
         rows = [[r["heliostat"], r["images"], _shown(r["heldout_error_ideal"], 4),
                  _shown(r["heldout_error_calibrated"], 4), r["named_effects"] or "none",
                  _shown(r["pointing_error_mrad"], 3, r["pointing_error_sigma_mrad"]),
@@ -283,7 +283,7 @@ def _plant_section(files: dict[str, list[str]]) -> str:
 
 def _shown(text: str, digits: int, sigma: str | None = None) -> str:
     """A table cell's number with `digits` decimals, "± sigma" where one is given; "–" for none."""
-    value, spread = _number(text), _number(sigma)
+    value, spread = _cell_number(text), _cell_number(sigma)
     if value is None:
         return "–"
     return fixed(value, digits) if spread is None else f"{fixed(value, digits)} ± {fixed(spread, digits)}"
@@ -353,7 +353,8 @@ LAYOUT = (
 )
 
 
-def _number(text: str | None) -> float | None:
+def _cell_number(text: str | None) -> float | None:
+    """A CSV cell as a number; None when empty or not a number."""
     if text is None:
         return None
     try:
@@ -371,11 +372,11 @@ def run_times(benchmark_dir: str | os.PathLike) -> list[dict]:
             records = list(csv.DictReader(io.StringIO(path.read_text(encoding="utf-8")), delimiter="\t"))
         except (OSError, UnicodeDecodeError) as exc:
             raise DataError(f"{path}: cannot read benchmark file: {exc}") from None
-        read = [_number(r.get("s")) for r in records]
+        read = [_cell_number(r.get("s")) for r in records]
         seconds = [s for s in read if s is not None]
         if not records or len(seconds) < len(read):
             raise DataError(f"{path}: not a snakemake benchmark file (needs a column `s` of seconds)")
-        rss = [v for v in (_number(r.get("max_rss")) for r in records) if v is not None]
+        rss = [v for v in (_cell_number(r.get("max_rss")) for r in records) if v is not None]
         rel = path.relative_to(root).with_suffix("")
         rows.append({"rule": rel.parts[0], "wildcards": "/".join(rel.parts[1:]),
                      "s": sum(seconds) / len(seconds), "max_rss_mb": max(rss) if rss else None})
