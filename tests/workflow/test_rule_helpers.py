@@ -147,7 +147,7 @@ def test_all_targets_are_the_report_whose_inputs_are_datasets_and_figures_under_
 def test_parameters_that_grow_with_the_plant_travel_in_a_spec_file_the_cli_reads(default_config, tmp_path):
     """rule `spec` writes rule_spec(config, rule) to specs/<rule>.json; the rules pass `@file` instead
     of the lists, which for a plant exceed what one command-line argument holds (128 KiB)."""
-    from helioflow.cli import _metrics, read_spec
+    from helioflow.cli import _metric_paths, read_spec
 
     config = expand_config(default_config)
     assert rule_spec(config, "report") == report_inputs(config)
@@ -158,7 +158,7 @@ def test_parameters_that_grow_with_the_plant_travel_in_a_spec_file_the_cli_reads
         rule_spec(config, "train")
     path = tmp_path / "table.json"
     write_spec(rule_spec(config, "table"), str(path), str(tmp_path / "table.log"))
-    assert _metrics([f"@{path}"]) == metrics_paths(config) and _metrics(["a.json", "b.json"]) == ["a.json", "b.json"]
+    assert _metric_paths([f"@{path}"]) == metrics_paths(config) and _metric_paths(["a.json", "b.json"]) == ["a.json", "b.json"]
     assert read_spec(f"@{path}") == {"metrics": metrics_paths(config)}
     with pytest.raises(HelioflowError, match="missing.json: cannot read the rule's parameters"):
         read_spec(f"@{tmp_path / 'missing.json'}")
