@@ -20,7 +20,7 @@ from support.paint_world import plant_worlds, write_plant  # noqa: E402
 
 from helioflow.data.paint import import_paint  # noqa: E402
 from helioflow.diagnosis.shared import plant_shared  # noqa: E402
-from helioflow.workflow import SHARED_DEFAULTS  # noqa: E402
+from helioflow.workflow import plant_settings  # noqa: E402
 
 BELIEVED = {"sunshape": {"kind": "gaussian", "sigma_mrad": 2.51}}
 TRUE_BLUR_PX, RAYS, HELD_OUT = 1.5, 300_000, 0.25
@@ -36,7 +36,7 @@ def run(seed: int, n: int, n_images: int, folder: Path) -> dict:
         import_paint(folder, name, folder / f"{name}.h5", folder / f"{name}_geometry.h5", holdout=held, dataset=name)
         entries.append({"heliostat": name, "dataset_path": str(folder / f"{name}.h5"),
                         "heliostat_path": str(folder / f"{name}_geometry.h5"), "effects": BELIEVED})
-    settings = {**SHARED_DEFAULTS, "fit_images": n_images - len(held), "heldout_images": len(held)}
+    settings = {**plant_settings({})["shared"], "fit_images": n_images - len(held), "heldout_images": len(held)}
     spec = {"settings": settings, "device": "cpu", "plants": {"plant": entries}}
     return plant_shared(spec, folder / "shared.json")["plant"]
 

@@ -7,8 +7,8 @@ docs/benchmarks.md). With `plant.group_size: N` the rules in workflow/rules/batc
 run each step for N heliostats of a plant entry in one process (`helioflow batch`), writing every
 heliostat's outputs and log where the per-heliostat rules write them. A group's job runs on one
 torch thread, so that snakemake's -j runs groups side by side (on these small fits two one-thread
-jobs do 1.5x the work of one two-thread job). A failed group is rerun whole: group_size 1 (the
-default) keeps one job per heliostat and step.
+jobs do 1.5x the work of one two-thread job). A failed group is rerun whole: group_size 1 keeps
+one job per heliostat and step (the default is the schema's, 3).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ BATCH_STAGES = ("import", "train", "evaluate", "diagnose")  # in the order a gro
 def plant_batches(config: dict) -> dict[str, list[str]]:
     """{batch: its datasets} of an expanded config: every plant entry's heliostat datasets (in the
     entry's order) in groups of `plant.group_size`, named '<entry>_g<k>'; {} for group_size 1."""
-    size = (config.get("plant") or {}).get("group_size", 1)
+    size = workflow.plant_settings(config)["group_size"]
     if size <= 1:
         return {}
     batches = {}

@@ -17,9 +17,9 @@ import yaml
 from helioflow.data.paint import plant_heliostats
 from helioflow.errors import ConfigError, DataError, HelioflowError
 from helioflow.physics.effects import check_effects
+from helioflow.schema import SCHEMA_PATH, fill_defaults, load_schema
 from helioflow.workflow import facing
 
-SCHEMA_PATH = Path(__file__).resolve().parents[2] / "workflow" / "schemas" / "config.schema.yaml"
 
 
 class _StrictLoader(yaml.SafeLoader):
@@ -122,14 +122,14 @@ def validate_config(config: dict, schema_path: str | Path = SCHEMA_PATH, source:
     _check_finite(config, source)
     import jsonschema  # here: the commands that take a spec from the Snakefile start without it
 
-    schema = yaml.safe_load(Path(schema_path).read_text())
+    schema = load_schema(str(schema_path))
     validator = jsonschema.Draft7Validator(schema)
     errors = sorted(validator.iter_errors(config),
                     key=lambda e: (len(e.absolute_path), list(map(str, e.absolute_path))))
     if errors:
         raise ConfigError(f"{source}: {_describe(errors[0])}")
     config = copy.deepcopy(config)
-    _fill_defaults(config, schema, schema)
+    fill_defaults(config, schema, schema)
     for ds in config["datasets"].values():
         if isinstance(ds.get("holdout"), list):
             ds["holdout"] = [str(i) for i in ds["holdout"]]
@@ -219,30 +219,13 @@ def _schema_text(schema: dict) -> str:
         return repr(schema["const"])
     if "$ref" in schema:
         name = schema["$ref"].rsplit("/", 1)[-1]
-        definition = yaml.safe_load(SCHEMA_PATH.read_text())["definitions"].get(name, {})
+        definition = load_schema()["definitions"].get(name, {})
         if "minimum" in definition or "exclusiveMinimum" in definition:
             low = (f">= {definition['minimum']}" if "minimum" in definition else f"> {definition['exclusiveMinimum']}")
             high = f" and <= {definition['maximum']}" if "maximum" in definition else ""
             return f"a number {low}{high}"
         return name
     return schema.get("type", "value")
-
-
-def _fill_defaults(node, schema: dict, root: dict) -> None:
-    """Fill missing keys that have a schema default (objects only)."""
-    if "$ref" in schema:
-        schema = root["definitions"][schema["$ref"].rsplit("/", 1)[-1]]
-    if not isinstance(node, dict):
-        return
-    for key, sub in schema.get("properties", {}).items():
-        if key not in node and "default" in sub:
-            node[key] = copy.deepcopy(sub["default"])
-        if key in node:
-            _fill_defaults(node[key], sub, root)
-    extra = schema.get("additionalProperties")
-    if isinstance(extra, dict):
-        for key in set(node) - set(schema.get("properties", {})):
-            _fill_defaults(node[key], extra, root)
 
 
 _SUN_KEYS = {"scan": ("azimuth_deg", "elevation_deg", "n"), "hemisphere": ("azimuth_deg", "elevation_deg", "n"),
@@ -258,6 +241,9 @@ def _check_references(config: dict, source: str) -> None:
 
     for network, settings in (config.get("networks") or {}).items():
         split_settings(network, settings or {}, config["seed"], where=f"{source}: networks.{network}")
+    plant_drt = config["plant"]["fit"].get("drt", {})  # over networks.drt, for every plant heliostat
+    split_settings("drt", {**(config.get("networks") or {}).get("drt", {}), **plant_drt}, config["seed"],
+                   where=f"{source}: plant.fit.drt (over networks.drt)")
     for network in (config.get("data_efficiency") or {}).get("networks", []):
         if network not in (config.get("networks") or {}):
             raise ConfigError(f"{source}: data_efficiency.networks has {network!r}, which is not in networks")

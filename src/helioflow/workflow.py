@@ -312,13 +312,16 @@ def models(config: dict) -> list[str]:
 
 
 def train_params(config: dict, dataset: str, model: str) -> dict:
-    """Parameters of rule `train`: the network, its settings section, the seed, the train subset;
-    a physics model (raytrace, drt) also gets the dataset's model effects and heliostat file."""
+    """Parameters of rule `train`: the network, its settings section (a plant heliostat's drt: with
+    config plant.fit.drt over it), the seed, the train subset; a physics model (raytrace, drt) also
+    gets the dataset's model effects and heliostat file."""
     network, count = parse_model(model)
     networks = config.get("networks") or {}
     if network not in networks:
         raise ConfigError(f"unknown network {network!r}: config networks has {', '.join(networks)}")
     settings = copy.deepcopy(networks[network] or {})
+    if network == "drt" and PLANT_KEY in config["datasets"][dataset]:
+        settings.update(plant_settings(config)["fit"].get("drt", {}))
     if network in PHYSICS_MODELS:
         settings.update(effects=model_effects(config, dataset), heliostat_path=heliostat_path(config, dataset))
     shared = shared_of(config, dataset) if network in PHYSICS_MODELS else None
@@ -357,10 +360,13 @@ DIAGNOSIS_DEFAULTS = {"fit_images": 24, "heldout_images": 48, "fit_steps": 80, "
 
 def diagnose_params(config: dict, dataset: str) -> dict:
     """Parameters of rule `diagnose`: the dataset's model effects and the fit settings
-    (config `diagnosis`, defaults DIAGNOSIS_DEFAULTS)."""
+    (config `diagnosis`, defaults DIAGNOSIS_DEFAULTS; a plant heliostat's with plant.fit.diagnosis
+    over them)."""
     shared = shared_of(config, dataset)
-    return {"effects": model_effects(config, dataset),
-            "settings": {**DIAGNOSIS_DEFAULTS, **copy.deepcopy(config.get("diagnosis") or {})},
+    settings = {**DIAGNOSIS_DEFAULTS, **copy.deepcopy(config.get("diagnosis") or {})}
+    if PLANT_KEY in config["datasets"][dataset]:
+        settings.update(plant_settings(config)["fit"].get("diagnosis", {}))
+    return {"effects": model_effects(config, dataset), "settings": settings,
             "device": config["device"], **({"shared": shared} if shared else {})}
 
 
@@ -925,7 +931,7 @@ def plant_table_spec(config: dict) -> dict:
     """Parameters and inputs of rule `plant_table` (scoring.plant.write_plant_table): per plant
     heliostat its dataset, the physics model config plant.model names (which must be among the
     networks), its diagnosis and its plant fit (shared_of; "" without one)."""
-    settings = {"model": "drt", "pointing_limit_mrad": 1.0, **(config.get("plant") or {})}
+    settings = plant_settings(config)
     if not plant_table_path(config):
         return {"pointing_limit_mrad": settings["pointing_limit_mrad"], "heliostats": []}
     if settings["model"] not in (config.get("networks") or {}):
@@ -941,22 +947,26 @@ def plant_table_spec(config: dict) -> dict:
                            for plant, members in plant_groups(config).items() for d in members]}
 
 
-SHARED_DEFAULTS = {"heliostats": 30, "fit_images": 12, "heldout_images": 16, "fit_steps": 30, "cells_per_side": 16,
-                   "fit_rays": 50_000}
+def plant_settings(config: dict) -> dict:
+    """Config `plant` with the schema's defaults filled in (helioflow.schema): how a plant's
+    heliostats are fitted (`fit`) and batched (`group_size`), the plant fit (`shared`), the table's
+    model and pointing limit, the flux maps (`flux`)."""
+    from helioflow.schema import section_with_defaults
+
+    return section_with_defaults(config, "plant")
 
 
 def plant_shared_settings(config: dict) -> dict | None:
-    """The plant fit's settings (config plant.shared over SHARED_DEFAULTS), None when the config has
-    no plant entry or sets `plant.shared: false` (each heliostat fitted alone)."""
-    shared = (config.get("plant") or {}).get("shared", {})
+    """The plant fit's settings (config plant.shared, with the schema's defaults), None when the
+    config has no plant entry or sets `plant.shared: false` (each heliostat fitted alone)."""
     if not _plant_fit_wanted(config) or not plant_groups(config):
         return None
-    return {**SHARED_DEFAULTS, **(copy.deepcopy(shared) if isinstance(shared, dict) else {})}
+    return plant_settings(config)["shared"]
 
 
 def _plant_fit_wanted(config: dict) -> bool:
     """Whether a plant's heliostats are fitted with the plant fit (`plant.shared` is not false)."""
-    return (config.get("plant") or {}).get("shared", {}) is not False
+    return plant_settings(config)["shared"] is not False
 
 
 def _shared_file(config: dict) -> str:
@@ -1013,22 +1023,13 @@ def shared_inputs(config: dict, dataset: str) -> list[str]:
     return [] if shared is None else [shared["path"]]
 
 
-PLANT_FLUX_DEFAULTS = {
-    "receiver": "receiver", "resolution": [96, 96], "aim": {"kind": "center"}, "cells_per_side": 8,
-    "sun": {"noon": {"azimuth_deg": 0.0, "elevation_deg": 40.0},  # Jülich (50.9 N): the equinox noon sun
-            "morning": {"azimuth_deg": 60.0, "elevation_deg": 25.0},
-            "afternoon": {"azimuth_deg": -60.0, "elevation_deg": 25.0}},
-    "effects": {"blocking_shading": {}, "attenuation": {"model": "vittitoe_biggs_clear"}},
-}
-
-
 def plant_flux_settings(config: dict) -> dict | None:
-    """The plant flux maps' settings (config plant.flux, validated: its aim has the schema's defaults,
-    over PLANT_FLUX_DEFAULTS), None when there is no plant table (plant_table_path) or `plant.flux: false`."""
-    flux = (config.get("plant") or {}).get("flux", {})
+    """The plant flux maps' settings (config plant.flux, with the schema's defaults), None when there
+    is no plant table (plant_table_path) or `plant.flux: false`."""
+    flux = plant_settings(config)["flux"]
     if not plant_table_path(config) or flux is False:
         return None
-    return {**copy.deepcopy(PLANT_FLUX_DEFAULTS), **(copy.deepcopy(flux) if isinstance(flux, dict) else {})}
+    return flux
 
 
 def _paint_plants(config: dict) -> dict[str, list[str]]:

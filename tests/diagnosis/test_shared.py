@@ -25,7 +25,7 @@ from helioflow.diagnosis.shared import (
     with_plant,
 )
 from helioflow.errors import DataError
-from helioflow.workflow import SHARED_DEFAULTS
+from helioflow.workflow import plant_settings
 
 N, N_IMAGES, HELD_OUT, RAYS, SEED = 4, 16, 4, 300_000, 3
 BELIEVED = {"sunshape": {"kind": "gaussian", "sigma_mrad": 2.51}}  # the world's sun, as in workflow/variants/plant_demo
@@ -44,7 +44,7 @@ def plant(tmp_path_factory):
         import_paint(folder, name, folder / f"{name}.h5", folder / f"{name}_geometry.h5", holdout=held, dataset=name)
         entries.append({"heliostat": name, "dataset_path": str(folder / f"{name}.h5"),
                         "heliostat_path": str(folder / f"{name}_geometry.h5"), "effects": BELIEVED})
-    spec = {"settings": {**SHARED_DEFAULTS, "fit_images": N_IMAGES - HELD_OUT, "heldout_images": HELD_OUT},
+    spec = {"settings": {**plant_settings({})["shared"], "fit_images": N_IMAGES - HELD_OUT, "heldout_images": HELD_OUT},
             "device": "cpu", "plants": {"plant": entries}}
     path = folder / "shared.json"
     return plant_shared(spec, path)["plant"], path

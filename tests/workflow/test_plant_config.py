@@ -126,7 +126,7 @@ def test_every_heliostat_of_a_plant_takes_the_plant_fits_shared_effects():
 
 def test_dry_run_fits_the_shared_effects_once_before_every_heliostats_fit_and_diagnosis(dry_run):
     config = _config({"heliostats": ["AA31", "AA39"]})
-    config.update(networks={"drt": {}}, diagnosis={})
+    config.update(networks={"drt": {}}, diagnosis={}, plant={"group_size": 1})  # the per-heliostat rules
     output = dry_run(config)
     inputs: dict[str, list[str]] = {}
     for rule, lines in re.findall(r"^rule (\w+):\n((?:\s+.*\n)+?)\s+output:", output, re.MULTILINE):
@@ -176,3 +176,34 @@ def test_the_plant_fit_takes_its_heliostats_evenly_and_reads_only_theirs():
     spec = plant_shared_spec(config)
     assert [h["heliostat"] for h in spec["plants"]["jul"]] == ["AA31", "AU46"] and spec["sizes"] == {"jul": 5}
     assert not any("AA39" in p for p in plant_shared_inputs(config))  # not taken: not an input
+
+
+def test_a_plant_entry_without_fit_settings_of_its_own_takes_the_plants():
+    """A plant's heliostats have few images each and the plant many heliostats: without settings of
+    its own, every heliostat's drt fit and diagnosis take plant.fit's (workflow/variants/plant_demo's,
+    which kept 85 heliostats an hour where config.yaml's gave 25), in groups of 3; the other datasets
+    keep networks.drt and diagnosis as they are."""
+    from helioflow.batch import plant_batches
+    from helioflow.workflow import diagnose_params, train_params
+
+    raw = _config({"heliostats": ["AA31", "AA39"]})
+    raw.update(networks={"drt": {"fit_steps": 150, "rounds": 8, "facet_hops": 12}}, diagnosis={"fit_steps": 80})
+    config = expand_config(validate_config(raw))
+    drt = train_params(config, "jul_AA39", "drt")["settings"]
+    assert {k: drt[k] for k in ("fit_steps", "rounds", "fit_images", "facet_hops", "pinned_hops")} == {
+        "fit_steps": 40, "rounds": 2, "fit_images": 12, "facet_hops": 0, "pinned_hops": 0}
+    assert {k: diagnose_params(config, "jul_AA39")["settings"][k] for k in ("fit_steps", "rounds")} == {
+        "fit_steps": 30, "rounds": 1}
+    assert train_params(config, "sky", "drt")["settings"]["fit_steps"] == 150  # not a plant's heliostat
+    assert diagnose_params(config, "sky")["settings"]["fit_steps"] == 80
+    assert plant_batches(config) == {"jul_g0": ["jul_AA31", "jul_AA39"]}
+
+    raw["plant"] = {"fit": {"drt": {"fit_steps": 60}, "diagnosis": {}}, "group_size": 1}  # the plant's own
+    config = expand_config(validate_config(raw))
+    drt = train_params(config, "jul_AA39", "drt")["settings"]
+    assert (drt["fit_steps"], drt["rounds"], drt["facet_hops"]) == (60, 8, 12)
+    assert diagnose_params(config, "jul_AA39")["settings"]["fit_steps"] == 80 and plant_batches(config) == {}
+
+    raw["plant"] = {"fit": {"drt": {"fit_step": 60}}}
+    with pytest.raises(ConfigError, match=r"plant\.fit\.drt \(over networks\.drt\).*fit_step"):
+        validate_config(raw)

@@ -423,7 +423,7 @@ def plant_shared(spec: dict, output_json: str | os.PathLike) -> dict:
     """Rule `plant_shared`: plant/shared.json, per plant entry what its heliostats share.
 
     spec: {"settings": heliostats, fit_images, heldout_images, fit_steps, cells_per_side, fit_rays
-    (workflow.SHARED_DEFAULTS), "device": ..., "plants": {plant: [{"heliostat", "dataset_path",
+    (config plant.shared, its defaults the schema's), "device": ..., "plants": {plant: [{"heliostat", "dataset_path",
     "heliostat_path", "effects"}]}, "sizes": {plant: its number of heliostats}} (workflow.plant_shared_spec,
     which lists only the heliostats the fit takes; of a longer list it takes `settings["heliostats"]`
     evenly, data.splits.evenly)."""
