@@ -15,6 +15,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "src" / "helioflow"
 LAYERS = (
     "__init__",  # the version
     "errors",
+    "schema",  # the config schema's defaults
     "io",  # atomic writes, torch files, fingerprints
     "checks",
     "device",

@@ -21,7 +21,6 @@ from helioflow.schema import SCHEMA_PATH, fill_defaults, load_schema
 from helioflow.workflow import facing
 
 
-
 class _StrictLoader(yaml.SafeLoader):
     """YAML's safe loader that refuses a mapping holding one key twice (plain YAML keeps the last
     silently: a variant with two `networks:` blocks would run with the second alone)."""

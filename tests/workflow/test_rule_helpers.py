@@ -158,7 +158,8 @@ def test_parameters_that_grow_with_the_plant_travel_in_a_spec_file_the_cli_reads
         rule_spec(config, "train")
     path = tmp_path / "table.json"
     write_spec(rule_spec(config, "table"), str(path), str(tmp_path / "table.log"))
-    assert _metric_paths([f"@{path}"]) == metrics_paths(config) and _metric_paths(["a.json", "b.json"]) == ["a.json", "b.json"]
+    assert _metric_paths([f"@{path}"]) == metrics_paths(config)
+    assert _metric_paths(["a.json", "b.json"]) == ["a.json", "b.json"]
     assert read_spec(f"@{path}") == {"metrics": metrics_paths(config)}
     with pytest.raises(HelioflowError, match="missing.json: cannot read the rule's parameters"):
         read_spec(f"@{tmp_path / 'missing.json'}")

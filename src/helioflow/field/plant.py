@@ -39,7 +39,7 @@ import os
 import time
 from collections import Counter
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any
 
 import numpy as np
 import torch
@@ -53,14 +53,11 @@ from helioflow.field.compose import FieldScene, aim_points, trace_field, without
 from helioflow.field.figure import plot_field_maps
 from helioflow.field.metrics import map_metrics, mean_metrics
 from helioflow.io import write_text_atomic
-from helioflow.models.registry import load_model
+from helioflow.models.registry import load_fitted_model
 from helioflow.physics.effects import REGISTRY, TENSOR_EFFECTS
 from helioflow.physics.field import BUDGET_TERMS, FieldFlux, flat_receiver
 from helioflow.physics.heliostat import Heliostat
 from helioflow.physics.scene import effective_tensors, with_tensors
-
-if TYPE_CHECKING:
-    from helioflow.models.physical import RaytraceModel
 
 log = logging.getLogger(__name__)
 
@@ -94,13 +91,9 @@ def calibrated_heliostat(name: str, model_path: str | os.PathLike, design: Helio
     """(the heliostat as its physics model's fit has it (float64), its fitted slope error (rad) or None
     where the model fits none); DataError naming the file when it holds no physics model or one
     fitted on a heliostat elsewhere than `design`."""
-    loaded, info = load_model(model_path)
-    model = cast("RaytraceModel", loaded)  # a physics model, unless the check next finds no fit
-    fitted = getattr(model, "fitted", None)
-    if fitted is None or model.heliostat is None:
-        raise DataError(f"{model_path}: a {info['network']} model has no fitted heliostat; the plant's flux map "
-                        "needs a physics model (plant.model: drt or raytrace)")
-    heliostat = model.heliostat.to("cpu", torch.float64)
+    model, heliostat, _ = load_fitted_model(model_path, "the plant's flux map")
+    fitted = model.fitted
+    heliostat = heliostat.to("cpu", torch.float64)
     offset = float((heliostat.position - design.position.to(heliostat.position)).norm())
     if offset > POSITION_TOLERANCE_M:
         raise DataError(f"{model_path}: fitted on a heliostat {offset:.2f} m from {name}'s pivot in its "

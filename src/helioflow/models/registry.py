@@ -7,6 +7,7 @@ import importlib
 import logging
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 import torch
@@ -17,6 +18,10 @@ from helioflow.errors import ConfigError, DataError
 from helioflow.io import load_torch, save_torch_atomic
 from helioflow.models.base import SpotModel, TrainingData
 from helioflow.models.training import LoopConfig, train, write_curve
+
+if TYPE_CHECKING:  # models.physical imports this module
+    from helioflow.models.physical import RaytraceModel
+    from helioflow.physics.heliostat import Heliostat
 
 log = logging.getLogger(__name__)
 
@@ -149,3 +154,15 @@ def load_model(path: str | os.PathLike, device: str | torch.device = "cpu") -> t
     model.load_state_dict(info["state"])
     model.to_device(resolve_device(device)).eval()
     return model, info
+
+
+def load_fitted_model(path: str | os.PathLike, needed_by: str) -> tuple[RaytraceModel, Heliostat, dict]:
+    """(physics model, its heliostat, file info) from a model file (load_model, on the CPU); DataError
+    naming the file and what needs the fit (`needed_by`: "the plant table") when the file holds a
+    network, or a physics model without a heliostat."""
+    model, info = load_model(path)
+    heliostat = getattr(model, "heliostat", None)
+    if getattr(model, "fitted", None) is None or heliostat is None:
+        raise DataError(f"{path}: a {info['network']} model has no fitted heliostat; {needed_by} needs a physics "
+                        "model (plant.model: drt or raytrace)")
+    return cast("RaytraceModel", model), heliostat, info

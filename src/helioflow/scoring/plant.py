@@ -34,7 +34,7 @@ import csv
 import io
 import json
 import os
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any
 
 import numpy as np
 import torch
@@ -42,14 +42,11 @@ import torch
 from helioflow.data.hdf5 import read_dataset
 from helioflow.errors import DataError
 from helioflow.io import write_text_atomic
-from helioflow.models.registry import load_model
+from helioflow.models.registry import load_fitted_model
 from helioflow.physics.effects import TENSOR_EFFECTS
 from helioflow.physics.heliostat import Heliostat
 from helioflow.physics.scene import effective_tensors
 from helioflow.scoring.recovery import pointing_angles_mrad, surface_heights
-
-if TYPE_CHECKING:
-    from helioflow.models.physical import RaytraceModel
 
 COLUMNS = ("plant", "heliostat", "dataset", "east_m", "north_m", "images", "heldout_error_ideal",
            "heldout_error_calibrated", "named_effects", "pointing_error_mrad", "pointing_error_sigma_mrad",
@@ -133,12 +130,8 @@ def heliostat_row(plant: str, heliostat: str, dataset: str, dataset_path: str | 
     """One row of the plant table (module docstring) from a heliostat's dataset, physics model and
     diagnosis, and its plant's entry of plant/shared.json (`shared`; None: no plant fit)."""
     ds = read_dataset(dataset_path)
-    loaded, info = load_model(model_path)
-    model = cast("RaytraceModel", loaded)  # a physics model, unless the check next finds no fit
-    fitted = getattr(model, "fitted", None)
-    if fitted is None or model.heliostat is None:
-        raise DataError(f"{model_path}: a {info['network']} model has no fitted heliostat; the plant table needs a "
-                        "physics model (plant.model: drt or raytrace)")
+    model, geometry, _ = load_fitted_model(model_path, "the plant table")
+    fitted = model.fitted
     try:
         with open(diagnosis_path) as f:
             diagnosis = json.load(f)
@@ -158,8 +151,8 @@ def heliostat_row(plant: str, heliostat: str, dataset: str, dataset_path: str | 
            **dict.fromkeys(COLUMNS[COLUMNS.index("pointing_error_mrad"):-1], "")}
     if "tracking" in tensors:
         at = [k for k, n in enumerate(u.names) if n.startswith("tracking.")] if u is not None else []
-        covariance = u.covariance[np.ix_(at, at)] if len(at) == 5 else None
-        rms, sigma = pointing_error(model.heliostat, tensors["tracking"].reshape(5), covariance, ds.azimuth_deg,
+        covariance = u.covariance[np.ix_(at, at)] if u is not None and len(at) == 5 else None
+        rms, sigma = pointing_error(geometry, tensors["tracking"].reshape(5), covariance, ds.azimuth_deg,
                                     ds.elevation_deg, ds.attrs["target_center_m"])
         row["pointing_error_mrad"] = round(rms, 4)
         row["pointing_error_sigma_mrad"] = "" if sigma is None else round(sigma, 4)
