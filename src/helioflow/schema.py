@@ -1,7 +1,8 @@
 """The config's schema (workflow/schemas/config.schema.yaml): where every config default lives.
 
-`validate_config` fills a config with them; the code that reads a section a config may leave out
-(`plant`) fills it from here too, so that no default is written twice.
+`validate_config` fills a config with them; the code that reads a part a config may leave out, or
+that tests build by hand (`plant`, `plan`), fills it from here too, so that no
+default is written twice.
 """
 
 from __future__ import annotations
@@ -39,13 +40,15 @@ def fill_defaults(node, schema: dict, root: dict) -> None:
             fill_defaults(node[key], extra, root)
 
 
-def section_with_defaults(config: dict, section: str) -> dict:
-    """Config `section` (a top-level key; absent or null: its schema default) with the schema's
-    defaults filled in, a copy."""
+def with_defaults(node: dict | None, *path: str) -> dict:
+    """`node`, the config's part at the key path `path` (("plant",), ("field", "layout"); None: absent,
+    so its schema default or {}), with the schema's defaults filled in: a copy."""
     schema = load_schema()
-    sub = schema["properties"][section]
-    node = copy.deepcopy(config.get(section))
-    if node is None:
-        node = copy.deepcopy(sub.get("default", {}))
-    fill_defaults(node, sub, schema)
-    return node
+    sub = schema
+    for key in path:
+        if "$ref" in sub:
+            sub = schema["definitions"][sub["$ref"].rsplit("/", 1)[-1]]
+        sub = sub["properties"][key]
+    filled = copy.deepcopy(node if node is not None else sub.get("default", {}))
+    fill_defaults(filled, sub, schema)
+    return filled

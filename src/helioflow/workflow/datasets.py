@@ -140,9 +140,9 @@ def plant_settings(config: dict) -> dict:
     """Config `plant` with the schema's defaults filled in (helioflow.schema): how a plant's
     heliostats are fitted (`fit`) and batched (`group_size`), the plant fit (`shared`), the table's
     model and pointing limit, the flux maps (`flux`)."""
-    from helioflow.schema import section_with_defaults
+    from helioflow.schema import with_defaults
 
-    return section_with_defaults(config, "plant")
+    return with_defaults(config.get("plant"), "plant")
 
 
 def plant_shared_settings(config: dict) -> dict | None:

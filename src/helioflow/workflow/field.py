@@ -16,7 +16,8 @@ from helioflow.errors import ConfigError, DataError
 FIELD_PREFIX = "field_"
 
 
-LAYOUT_DEFAULTS = {"spacing_m": "auto", "clearance_m": 1.0, "sector_deg": 120.0, "pivot_height_m": 0.0}
+LAYOUT_DEFAULTS = {"spacing_m": "auto", "clearance_m": 1.0, "sector_deg": 120.0, "pivot_height_m": 0.0}  # fermat,
+# radial: not the schema's, which would give a list or csv layout keys its kind refuses (config._check_field)
 
 
 FIELD_ONLY_EFFECTS = ("blocking_shading",)  # acts in field traces only: left out of calibration datasets

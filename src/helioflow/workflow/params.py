@@ -218,13 +218,12 @@ def diagnose_params(config: dict, dataset: str) -> dict:
             "device": config["device"], **({"shared": shared} if shared else {})}
 
 
-PLAN_DEFAULTS = {"images": 8, "criterion": "d_optimal", "days": 7.0, "every_minutes": 30.0, "min_elevation_deg": 10.0}
-
-
 def plan_params(config: dict, dataset: str) -> dict:
-    """Parameters of rule `plan_measurements`: config `plan` (defaults PLAN_DEFAULTS; its
+    """Parameters of rule `plan_measurements`: config `plan` (with the schema's defaults; its
     `datasets` list says which datasets get a plan) and the device."""
-    settings = {**PLAN_DEFAULTS, **copy.deepcopy(config.get("plan") or {})}
+    from helioflow.schema import with_defaults
+
+    settings = with_defaults(config.get("plan"), "plan")
     settings.pop("datasets", None)
     return {"settings": settings, "device": config["device"]}
 
