@@ -19,6 +19,7 @@ import io
 import json
 import logging
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -109,34 +110,23 @@ def _mean(values: np.ndarray) -> float | None:
     return float(finite.mean()) if len(finite) else None
 
 
-def evaluate_model(model_path: str | os.PathLike, dataset_path: str | os.PathLike, out_json, out_csv,
-                   out_grid_png, out_psnr_png, gan_samples: int = 64, seed: int = 0, device: str = "cpu") -> dict:
-    """Score a model file on a dataset file; write metrics JSON, per-image CSV and two figures.
+@dataclass
+class Evaluation:
+    """A model scored on a dataset (`evaluate`): `result` is the metrics JSON's dict
+    (`evaluate_model`'s out_json), `per_image` the (N,) metrics of every image (METRICS), `predicted`
+    and `measured` the (N, H, W) images as compared (divided by the dataset's maximum)."""
 
-    Args:
-        model_path: a file written by :func:`helioflow.models.registry.train_network`.
-        dataset_path: a calibration dataset (``helioflow.dataset/1``) with the attributes
-            ``target_size_m`` [w, h], ``target_center_m`` and ``heliostat_position_m``.
-        out_json: {"network", "dataset", "controllable", "splits": {split: {"psnr" (dB),
-            "ssim", "centroid_mrad", "flux_accuracy", "n"}}, plus "model", "scoring",
-            "psnr_max_db", "dataset_max_w_m2", "model_scale_w_m2" and, for an unconditioned
-            model, "samples" and "note"}. Split values are means over the split's images
-            (centroid and flux accuracy over images where they are defined); a split without
-            images has n = 0 and null metrics.
-        out_csv: one row per dataset image: index, azimuth_deg, elevation_deg, split, psnr,
-            ssim, centroid_mrad, flux_accuracy.
-        out_grid_png: measured / predicted / difference images over a spread of sun positions
-            from the interpolation and extrapolation splits (the train split if both are empty).
-        out_psnr_png: PSNR against sun azimuth and elevation, coloured by split.
-        gan_samples: samples drawn once (seeded) for a model with ``controllable == False``.
-        seed: seed of the generator handed to ``model.predict``.
-        device: where the model predicts (cpu | cuda | auto); the metrics are computed on the CPU.
-    Returns:
-        the JSON's dict.
-    Raises:
-        DataError: unreadable files, missing attributes, or a model whose image shape differs
-            from the dataset's.
-    """
+    result: dict
+    dataset: CalibrationDataset
+    per_image: dict[str, np.ndarray]
+    predicted: np.ndarray
+    measured: np.ndarray
+    title: str
+
+
+def evaluate(model_path: str | os.PathLike, dataset_path: str | os.PathLike, gan_samples: int = 64, seed: int = 0,
+             device: str = "cpu") -> Evaluation:
+    """Score a model file on a dataset file (arguments and errors: `evaluate_model`); writes nothing."""
     model, info = load_model(model_path, device)
     ds = read_dataset(dataset_path)
     network = info["network"]
@@ -172,17 +162,56 @@ def evaluate_model(model_path: str | os.PathLike, dataset_path: str | os.PathLik
                           "measured image is scored against the sample with the best PSNR - an optimistic upper "
                           "bound, not a prediction")
         log.info("%s is not controllable: scored as best of %d samples", network, gan_samples)
-
-    write_text_atomic(out_json, json.dumps(result, indent=2, allow_nan=False) + "\n")
-    _write_csv(out_csv, ds, per_image)
     title = f"{network} on {name}" + ("" if model.controllable else f" (best of {gan_samples} samples)")
-    plot_prediction_grid(ds, meas, pred, per_image["psnr"], title, out_grid_png)
-    plot_psnr_vs_sun(ds, per_image["psnr"], title, out_psnr_png)
+    return Evaluation(result, ds, per_image, pred, meas, title)
+
+
+def write_evaluation(evaluation: Evaluation, out_json, out_csv, out_grid_png, out_psnr_png) -> None:
+    """Write an `evaluate` result: the metrics JSON, the per-image CSV and the two figures
+    (`evaluate_model`'s outputs)."""
+    e = evaluation
+    write_text_atomic(out_json, json.dumps(e.result, indent=2, allow_nan=False) + "\n")
+    _write_csv(out_csv, e.dataset, e.per_image)
+    plot_prediction_grid(e.dataset, e.measured, e.predicted, e.per_image["psnr"], e.title, out_grid_png)
+    plot_psnr_vs_sun(e.dataset, e.per_image["psnr"], e.title, out_psnr_png)
     for split in SPLITS:
-        s = result["splits"][split]
+        s = e.result["splits"][split]
         if s["n"]:
-            log.info("%s %s: n=%d PSNR %.2f dB, SSIM %.3f", title, split, s["n"], s["psnr"], s["ssim"])
-    return result
+            log.info("%s %s: n=%d PSNR %.2f dB, SSIM %.3f", e.title, split, s["n"], s["psnr"], s["ssim"])
+
+
+def evaluate_model(model_path: str | os.PathLike, dataset_path: str | os.PathLike, out_json, out_csv,
+                   out_grid_png, out_psnr_png, gan_samples: int = 64, seed: int = 0, device: str = "cpu") -> dict:
+    """Rule `evaluate`: score a model file on a dataset file (`evaluate`), then write the metrics
+    JSON, the per-image CSV and two figures (`write_evaluation`).
+
+    Args:
+        model_path: a file written by :func:`helioflow.models.registry.train_network`.
+        dataset_path: a calibration dataset (``helioflow.dataset/1``) with the attributes
+            ``target_size_m`` [w, h], ``target_center_m`` and ``heliostat_position_m``.
+        out_json: {"network", "dataset", "controllable", "splits": {split: {"psnr" (dB),
+            "ssim", "centroid_mrad", "flux_accuracy", "n"}}, plus "model", "scoring",
+            "psnr_max_db", "dataset_max_w_m2", "model_scale_w_m2" and, for an unconditioned
+            model, "samples" and "note"}. Split values are means over the split's images
+            (centroid and flux accuracy over images where they are defined); a split without
+            images has n = 0 and null metrics.
+        out_csv: one row per dataset image: index, azimuth_deg, elevation_deg, split, psnr,
+            ssim, centroid_mrad, flux_accuracy.
+        out_grid_png: measured / predicted / difference images over a spread of sun positions
+            from the interpolation and extrapolation splits (the train split if both are empty).
+        out_psnr_png: PSNR against sun azimuth and elevation, coloured by split.
+        gan_samples: samples drawn once (seeded) for a model with ``controllable == False``.
+        seed: seed of the generator handed to ``model.predict``.
+        device: where the model predicts (cpu | cuda | auto); the metrics are computed on the CPU.
+    Returns:
+        the JSON's dict.
+    Raises:
+        DataError: unreadable files, missing attributes, or a model whose image shape differs
+            from the dataset's.
+    """
+    evaluation = evaluate(model_path, dataset_path, gan_samples, seed, device)
+    write_evaluation(evaluation, out_json, out_csv, out_grid_png, out_psnr_png)
+    return evaluation.result
 
 
 def _write_csv(path, ds: CalibrationDataset, per_image: dict) -> None:
