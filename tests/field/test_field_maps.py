@@ -2,6 +2,7 @@
 heliostats, 2 measured, nearest models on 12-image calibration datasets): the three maps, the
 metrics, flux.h5, and a perfect model reproducing the truth to within the carrying error."""
 
+import copy
 import json
 import math
 
@@ -176,3 +177,38 @@ def test_spot_metrics_of_exact_and_scaled_maps():
     shifted = spot_metrics(1.1 * np.roll(truth, 1, axis=1), truth, (0.1, 0.2))
     assert shifted["peak_flux_error"] == pytest.approx(0.1) and shifted["power_error"] == pytest.approx(0.1)
     assert shifted["centroid_error_m"] == pytest.approx(0.1)
+
+
+def test_a_physics_models_hybrid_spot_is_its_fit_traced_on_the_receiver(tmp_path):
+    """A drt model whose fit is the heliostat's truth (its tracking and surface as the surfaces rule
+    drew them, the world's slope error) under the world's physics: its hybrid spot is traced on the
+    receiver as fitted, so on these canted 2 x 2 heliostats it is the true spot, where the true
+    calibration spot carried there (what a perfect learned model gives) keeps the carrying error."""
+    def canted(config: dict) -> None:
+        config["field"]["heliostat"] = "small_grid"
+        config["field"]["network"] = "drt"
+        config["networks"] = {"drt": {}}
+        config["model"]["effects"] = copy.deepcopy(config["world"]["effects"])
+        for key in ("world_effects", "model_effects"):
+            config["field"][key] = {"attenuation": {"model": "vittitoe_biggs_clear"}}
+
+    config = tiny_field(canted)
+    models, datasets = build(config, tmp_path, "drt", {"fit_steps": 1, "rounds": 1, "fit_images": 2,
+                                                        "facet_hops": 0, "pinned_hops": 0, "gauss_newton_steps": 0})
+    spec = compose_field_params(config)
+    scene = build_scene(spec, torch.device("cpu"))
+    for k, path in zip(scene.measured, models):
+        info = torch.load(path, weights_only=False)
+        fit = info["state"]["_extra_state"]
+        truth = scene.true[k]
+        fit["tensors"] = {"tracking": truth.tracking_error * 1e3, "canting": truth.canting_error * 1e3,
+                          "surface": truth.control_heights * 1e3}  # mrad, mrad, mm: the fit's units
+        fit["tensors"] = {key: value.float() for key, value in fit["tensors"].items()}  # as the model holds them
+        fit["effects"] = {**fit["effects"], "slope_error": {"sigma_mrad": 0.5}}
+        torch.save(info, path)
+    metrics = compose_field(spec, models, datasets, tmp_path / "f.h5", tmp_path / "f.png", tmp_path / "m.json")
+    for row in metrics["design_points"].values():
+        for h in row["measured"].values():
+            assert h["hybrid_from"] == "traced fit"
+            assert h["hybrid"]["flux_accuracy"] > 0.999, h
+            assert h["hybrid"]["flux_accuracy"] > h["carried_truth"]["flux_accuracy"] + 0.01, h

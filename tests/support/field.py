@@ -1,5 +1,6 @@
 """The tiny field the field tests compose: its config and its measured heliostats' models."""
 
+from collections.abc import Callable
 from pathlib import Path
 
 import yaml
@@ -8,20 +9,32 @@ from helioflow.config import validate_config
 from helioflow.data.surfaces import HeliostatSpec, true_heliostat, write_heliostat
 from helioflow.data.synthetic import trace_dataset
 from helioflow.models.registry import train_network
-from helioflow.workflow import compose_field_inputs, expand_field, field_measured, trace_params
+from helioflow.workflow import (
+    PHYSICS_MODELS,
+    compose_field_inputs,
+    expand_field,
+    field_measured,
+    trace_params,
+    train_params,
+)
 
 WORKFLOW = Path(__file__).resolve().parents[1] / "workflow"
 
 
-def tiny_field() -> dict:
+def tiny_field(edit: Callable[[dict], None] | None = None) -> dict:
+    """The tiny field's config, expanded; `edit` changes the raw config first."""
     config = yaml.safe_load((WORKFLOW / "tiny_config.yaml").read_text())
     config.update(yaml.safe_load((WORKFLOW / "tiny_field.yaml").read_text()))
+    if edit is not None:
+        edit(config)
     return expand_field(validate_config(config))
 
 
-def build(config: dict, root: Path) -> tuple[list[str], list[str]]:
-    """Surfaces, calibration datasets and nearest models of the measured heliostats under root, as
-    the surfaces, trace and train rules make them; (model paths, dataset paths)."""
+def build(config: dict, root: Path, network: str = "nearest", settings: dict | None = None
+          ) -> tuple[list[str], list[str]]:
+    """Surfaces, calibration datasets and models (`network`: the config's field.network; a physics
+    model with `settings` over its train_params) of the measured heliostats under root, as the
+    surfaces, trace and train rules make them; (model paths, dataset paths)."""
     models, datasets = [], []
     for name, model, dataset in zip(field_measured(config), *compose_field_inputs(config).values()):
         model, dataset = root / model, root / dataset
@@ -30,8 +43,12 @@ def build(config: dict, root: Path) -> tuple[list[str], list[str]]:
         spec = HeliostatSpec.from_config(name, config["heliostats"][name])
         write_heliostat(surface, true_heliostat(spec), spec)
         trace_dataset(trace_params(config, name), surface, dataset)
+        own = {}
+        if network in PHYSICS_MODELS:
+            own = {**train_params(config, name, network)["settings"], **(settings or {})}
+            own["heliostat_path"] = str(surface)
         train_network(
-            "nearest", {}, dataset, model, root / f"{name}.csv", root / f"{name}.png", seed=0, progress=False
+            network, own, dataset, model, root / f"{name}.csv", root / f"{name}.png", seed=0, progress=False
         )
         models.append(str(model))
         datasets.append(str(dataset))

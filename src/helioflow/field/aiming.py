@@ -5,8 +5,9 @@ For each sun design point every heliostat's spot is traced once aimed at the rec
 receiver grid extended by the largest aim move (field.aim.SpotPatches), under three models:
 
     ideal   the model physics with every heliostat ideal (compose_field's ideal map, spot by spot)
-    hybrid  the ideal spots, the measured heliostats' replaced by their learned spots carried to the
-            receiver (compose.learned_spots, compose.hybrid_spot)
+    hybrid  the ideal spots, the measured heliostats' replaced by their models' spots: a physics
+            model's fit traced on the receiver (compose.traced_spots), a learned spot carried there
+            (compose.learned_spots, compose.hybrid_spot)
     truth   the world physics with every heliostat's true errors: the oracle, an upper bound
 
 and field.aim.optimise chooses aim offsets on each. Every aiming -- `default` (field.aim) and the
@@ -48,8 +49,9 @@ from helioflow.field.compose import (
     build_scene,
     hybrid_spot,
     learned_spots,
-    load_calibration,
+    load_calibrations,
     trace_field,
+    traced_spots,
     without_fit,
 )
 from helioflow.field.figure import plot_aim_maps
@@ -93,8 +95,12 @@ def model_spots(
         centred, without_fit(spec["model_effects"]), [h.ideal() for h in scene.true], dni, cells, device
     )
     hybrid = ideal.asked_spots().clone()
-    for k, model_path, dataset_path in zip(scene.measured, model_paths, dataset_paths):
-        cal = load_calibration(scene.names[k], model_path, dataset_path, device)
+    cals = load_calibrations(scene, model_paths, dataset_paths, device)
+    traced = traced_spots(centred, scene.measured, cals, without_fit(spec["model_effects"]), dni, cells, device)
+    for k, cal in zip(scene.measured, cals):
+        if k in traced:
+            hybrid[:, k] = traced[k]
+            continue
         _, _, learned = learned_spots(centred, k, cal, spec)
         hybrid[:, k] = hybrid_spot(centred, k, cal, learned, ideal, model_optics)
     return {"ideal": ideal.asked_spots(), "hybrid": hybrid, "truth": truth.asked_spots()}

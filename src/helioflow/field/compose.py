@@ -9,12 +9,16 @@ each sun design point; their metrics against truth; the figure.
             registry default: nothing is fitted here) with every heliostat ideal: what a plant
             computes today.
     hybrid  the ideal map without the measured heliostats' spots, plus for each measured heliostat
-            its learned model's spot: asked for at the equivalent calibration sun, carried from the
-            calibration target to the receiver (physics.carry), and multiplied by what the
-            calibration never saw, from the ideal map's budget and the model physics:
-            (1 - shaded / incident) (1 - blocked / reflected) T(D_r) / T(D_c), T the model's
-            atmospheric transmittance at the slant ranges to the receiver aim point and to the
-            calibration target.
+            its model's spot. A physics model (drt, raytrace) knows its heliostat: its spot is
+            traced on the receiver with the fitted tracking, canting, surface and slope error, in
+            one field trace beside the ideal neighbours (`traced_spots`). A learned model's spot is
+            asked for at the equivalent calibration sun, carried from the calibration target to the
+            receiver (physics.carry), and multiplied by what the calibration never saw, from the
+            ideal map's budget and the model physics: (1 - shaded / incident) (1 - blocked /
+            reflected) T(D_r) / T(D_c), T the model's atmospheric transmittance at the slant ranges
+            to the receiver aim point and to the calibration target. Carrying a canted heliostat's
+            spot misses how its facets' images close in between target and receiver (docs/field.md),
+            which tracing the fit does not.
 
 The carrying error: for every measured heliostat the true spot on the calibration target (traced
 with the calibration dataset's own world effects and trace settings, no camera) is carried the
@@ -52,11 +56,12 @@ from helioflow.io import write_text_atomic
 from helioflow.models.base import SpotModel
 from helioflow.models.registry import load_model
 from helioflow.physics.carry import carry_spot, commanded_normal, core_spread, equivalent_sun
-from helioflow.physics.effects import FIT, REGISTRY, resolve
+from helioflow.physics.effects import FIT, REGISTRY, TENSOR_EFFECTS, resolve
 from helioflow.physics.field import BUDGET_TERMS, FieldFlux, FieldHeliostats, field_flux, flat_receiver
 from helioflow.physics.geometry import azimuth_elevation, normalize, sun_vector
 from helioflow.physics.heliostat import Heliostat
 from helioflow.physics.raytrace import Optics, trace
+from helioflow.physics.scene import effective_tensors, with_tensors
 from helioflow.physics.target import Target
 
 log = logging.getLogger(__name__)
@@ -237,6 +242,13 @@ def load_calibration(
     )
 
 
+def load_calibrations(scene: FieldScene, model_paths: list[str], dataset_paths: list[str], device: torch.device
+                      ) -> list[Calibration]:
+    """The measured heliostats' calibrations (`load_calibration`), in scene.measured's order."""
+    triples = zip(scene.measured, model_paths, dataset_paths)
+    return [load_calibration(scene.names[k], m, d, device) for k, m, d in triples]
+
+
 def _transmittance(optics: Optics, distance: Tensor) -> Tensor:
     return torch.ones_like(distance) if optics.transmittance is None else optics.transmittance(distance)
 
@@ -301,6 +313,43 @@ def hybrid_spot(scene: FieldScene, k: int, cal: Calibration, learned: Tensor, id
     return _carry(learned, cal.target, scene, k, suns, optics) * factor[:, None, None]
 
 
+def as_fitted(model: SpotModel) -> tuple[Heliostat, float | None] | None:
+    """(the heliostat (float64, CPU) with a physics model's fitted tracking, canting and surface, its
+    fitted slope error (rad) or None where the fit has none); None for a model that is not a fitted
+    physics model (a network)."""
+    heliostat, fitted = getattr(model, "heliostat", None), getattr(model, "fitted", None)
+    if heliostat is None or fitted is None:
+        return None
+    tensors = {k: v.detach().cpu().double() for k, v in fitted.tensors.items()}
+    slope = (fitted.effects.get("slope_error") or {}).get("sigma_mrad")
+    own = float(slope) * 1e-3 if isinstance(slope, (int, float)) else None
+    return with_tensors(heliostat.to("cpu", torch.float64), effective_tensors(tensors)), own
+
+
+def traced_spots(scene: FieldScene, measured: list[int], cals: list[Calibration], effects: dict, dni: float,
+                 cells: int, device: torch.device) -> dict[int, Tensor]:
+    """{layout index: (S, H, W) W/m^2} the receiver spots of the heliostats `measured` (layout
+    indices, their calibrations `cals`) whose model is a fitted physics model (`as_fitted`): one
+    field trace under the model physics `effects` (no "fit" values) with those heliostats as fitted
+    and every other one ideal, so shading and blocking are the tracer's. Every heliostat in
+    `measured` must be among the scene's asked spots (scene.measured)."""
+    geometry, slopes, fits = [h.ideal() for h in scene.true], {}, []
+    for k, cal in zip(measured, cals):
+        fit = as_fitted(cal.model)
+        if fit is None:
+            continue
+        geometry[k], own = fit
+        fits.append(k)
+        if own is not None:
+            slopes[k] = own
+    if not fits:
+        return {}
+    own_tensors = {**effects, **{name: {} for name in TENSOR_EFFECTS}}  # each heliostat's own (fitted or none)
+    flux, _ = trace_field(scene, own_tensors, geometry, dni, cells, device, slopes)
+    spots = flux.asked_spots()
+    return {k: spots[:, scene.measured.index(k)] for k in fits}
+
+
 def measured_spots(
     scene: FieldScene,
     k: int,
@@ -310,10 +359,12 @@ def measured_spots(
     ideal: FieldFlux,
     optics: dict[str, Optics],
     spec: dict,
+    traced: Tensor | None = None,
 ) -> tuple[dict[str, Tensor], dict]:
     """Heliostat k's (the j-th measured) spots {SPOTS: (S, H, W) W/m^2} and its details: equivalent
-    sun positions (deg), their angle to the nearest train image's sun (deg), and the reflected
-    power (W) the hybrid map books for it."""
+    sun positions (deg), their angle to the nearest train image's sun (deg), the reflected power (W)
+    the hybrid map books for it, and how its hybrid spot was made. `traced`: its fit's spot traced on
+    the receiver (`traced_spots`), the hybrid spot of a physics model; None: its learned spot carried."""
     device = scene.aims.device
     suns = sun_vector(scene.azimuth, scene.elevation)  # (S, 3)
     position = scene.true[k].position.to(suns)
@@ -341,7 +392,7 @@ def measured_spots(
     spots = {
         "truth": truth.asked_spots()[:, j],
         "ideal": ideal.asked_spots()[:, j],
-        "hybrid": hybrid_spot(scene, k, cal, learned, ideal, optics["model"]),
+        "hybrid": hybrid_spot(scene, k, cal, learned, ideal, optics["model"]) if traced is None else traced,
         "carried_truth": _carry(true_target, cal.target, scene, k, suns, optics["model"])
         * truth_factor[:, None, None],
     }
@@ -350,6 +401,7 @@ def measured_spots(
         "equivalent_sun_deg": torch.rad2deg(az_el).tolist(),
         "nearest_calibration_deg": nearest.tolist(),
         "reflected_w": (learned_w * incidence * unshaded / _transmittance(optics["model"], d_c)).tolist(),
+        "hybrid_from": "carried learned spot" if traced is None else "traced fit",
     }
     return spots, details
 
@@ -391,9 +443,11 @@ def compose_field(
     optics = {"world": world_optics, "model": model_optics}
     collected: dict[str, list[Tensor]] = {s: [] for s in SPOTS}
     details = []
-    for j, (k, model_path, dataset_path) in enumerate(zip(scene.measured, model_paths, dataset_paths)):
-        cal = load_calibration(scene.names[k], model_path, dataset_path, device)
-        heliostat_spots, heliostat_details = measured_spots(scene, k, j, cal, truth, ideal, optics, spec)
+    cals = load_calibrations(scene, model_paths, dataset_paths, device)
+    traced = traced_spots(scene, scene.measured, cals, without_fit(spec["model_effects"]), dni, cells, device)
+    for j, (k, cal) in enumerate(zip(scene.measured, cals)):
+        heliostat_spots, heliostat_details = measured_spots(scene, k, j, cal, truth, ideal, optics, spec,
+                                                            traced.get(k))
         for s in SPOTS:
             collected[s].append(heliostat_spots[s])
         details.append(heliostat_details)
@@ -421,7 +475,7 @@ def compose_field(
         scene.measured,
         (scene.receiver.width, scene.receiver.height),
         f"{len(scene.names)} heliostats, {len(scene.measured)} measured with {spec['network']}: "
-        "truth (world), ideal (model raytrace), hybrid (learned spots + raytrace)",
+        "truth (world), ideal (model raytrace), hybrid (measured heliostats by their models + raytrace)",
     )
     log.info(
         "field: %d heliostats, %d design points in %.1f s",
@@ -464,6 +518,7 @@ def _field_metrics(
             scene.names[k]: {
                 "equivalent_sun_deg": d["equivalent_sun_deg"][i],
                 "nearest_calibration_deg": d["nearest_calibration_deg"][i],
+                "hybrid_from": d["hybrid_from"],
                 **{s: spot_metrics(spots[s][i, j], spots["truth"][i, j], pixel) for s in SPOTS[1:]},
             }
             for j, (k, d) in enumerate(zip(scene.measured, details))

@@ -49,7 +49,7 @@ from helioflow.data.paint import PROPERTIES_FILE, Tower, read_heliostat_properti
 from helioflow.data.synthetic import config_hash
 from helioflow.device import resolve_device
 from helioflow.errors import DataError
-from helioflow.field.compose import FieldScene, aim_points, trace_field, without_fit
+from helioflow.field.compose import FieldScene, aim_points, as_fitted, trace_field, without_fit
 from helioflow.field.figure import plot_field_maps
 from helioflow.field.metrics import map_metrics, mean_metrics
 from helioflow.io import write_text_atomic
@@ -57,7 +57,6 @@ from helioflow.models.registry import load_fitted_model
 from helioflow.physics.effects import REGISTRY, TENSOR_EFFECTS
 from helioflow.physics.field import BUDGET_TERMS, FieldFlux, flat_receiver
 from helioflow.physics.heliostat import Heliostat
-from helioflow.physics.scene import effective_tensors, with_tensors
 
 log = logging.getLogger(__name__)
 
@@ -92,16 +91,13 @@ def calibrated_heliostat(name: str, model_path: str | os.PathLike, design: Helio
     where the model fits none); DataError naming the file when it holds no physics model or one
     fitted on a heliostat elsewhere than `design`."""
     model, heliostat, _ = load_fitted_model(model_path, "the plant's flux map")
-    fitted = model.fitted
-    heliostat = heliostat.to("cpu", torch.float64)
-    offset = float((heliostat.position - design.position.to(heliostat.position)).norm())
+    offset = float((heliostat.position.double().cpu() - design.position.double().cpu()).norm())
     if offset > POSITION_TOLERANCE_M:
         raise DataError(f"{model_path}: fitted on a heliostat {offset:.2f} m from {name}'s pivot in its "
                         f"{PROPERTIES_FILE}; refit it on this plant's data")
-    tensors = {k: v.detach().cpu().double() for k, v in fitted.tensors.items()}
-    slope = (fitted.effects.get("slope_error") or {}).get("sigma_mrad")
-    own = float(slope) * 1e-3 if isinstance(slope, (int, float)) else None
-    return with_tensors(heliostat, effective_tensors(tensors)), own
+    fit = as_fitted(model)
+    assert fit is not None  # load_fitted_model refuses a model without a fit
+    return fit
 
 
 def _spot_place(spots: np.ndarray, receiver, pixel_area: float) -> tuple[np.ndarray, np.ndarray]:
