@@ -202,6 +202,8 @@ def train_threads(config: dict, dataset: str, model: str) -> int:
     return config["torch_threads"]
 
 
+# not in the schema: plant.fit.diagnosis takes the same keys ($ref), and defaults there would override
+# the config's own diagnosis for every plant heliostat
 DIAGNOSIS_DEFAULTS = {"fit_images": 24, "heldout_images": 48, "fit_steps": 80, "rounds": 2, "cells_per_side": 16,
                       "fit_rays": 50_000, "max_effects": 2}
 
