@@ -83,10 +83,12 @@ def test_metrics_per_design_point_map_and_measured_heliostat(composed):
             assert set(h) == {
                 "equivalent_sun_deg",
                 "nearest_calibration_deg",
+                "hybrid_from",
                 "ideal",
                 "hybrid",
                 "carried_truth",
             }
+            assert h["hybrid_from"] == "carried learned spot"  # nearest is a network: its spot is carried
             assert all(set(h[s]) == set(SPOT_METRICS) for s in ("ideal", "hybrid", "carried_truth"))
             assert 0 < h["equivalent_sun_deg"][1] < 90 and h["nearest_calibration_deg"] >= 0
     summary = metrics["summary"]
