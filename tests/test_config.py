@@ -191,3 +191,23 @@ def test_a_variant_removes_default_entries_and_sections_with_null():
     assert list(checked["datasets"]) == ["sanity_check"]
     assert "nerf" not in checked["networks"] and "gan" in checked["networks"]
     assert "field" not in checked
+
+
+def test_the_defaults_the_code_keeps_are_valid_by_the_schema():
+    """DIAGNOSIS_DEFAULTS and LAYOUT_DEFAULTS stay in the code (the schema cannot hold them: see their
+    comments); each is checked against the schema part it fills, and covers every key with a
+    meaning of its own there (a layout's positions and csv belong to other kinds)."""
+    import jsonschema
+
+    from helioflow.schema import load_schema
+    from helioflow.workflow import DIAGNOSIS_DEFAULTS, LAYOUT_DEFAULTS
+
+    schema = load_schema()
+    diagnosis = schema["definitions"]["diagnosis"]
+    jsonschema.Draft7Validator(diagnosis).validate(DIAGNOSIS_DEFAULTS)
+    assert set(DIAGNOSIS_DEFAULTS) == set(diagnosis["properties"])
+    layout = schema["properties"]["field"]["properties"]["layout"]
+    resolvable = jsonschema.Draft7Validator({**layout, "definitions": schema["definitions"]})  # its $refs resolve
+    for kind in ("fermat", "radial"):
+        resolvable.validate({"kind": kind, "n": 10, "min_radius_m": 20.0, **LAYOUT_DEFAULTS})
+    assert set(LAYOUT_DEFAULTS) == set(layout["properties"]) - {"kind", "n", "min_radius_m", "positions", "csv"}
