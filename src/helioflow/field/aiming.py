@@ -99,7 +99,7 @@ def model_spots(
     traced = traced_spots(centred, scene.measured, cals, without_fit(spec["model_effects"]), dni, cells, device)
     for k, cal in zip(scene.measured, cals):
         if k in traced:
-            hybrid[:, k] = traced[k]
+            hybrid[:, k] = traced[k][0]
             continue
         _, _, learned = learned_spots(centred, k, cal, spec)
         hybrid[:, k] = hybrid_spot(centred, k, cal, learned, ideal, model_optics)

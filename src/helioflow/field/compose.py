@@ -277,11 +277,11 @@ def _carry(images: Tensor, target: Target, scene: FieldScene, k: int, suns: Tens
     )
 
 
-def learned_spots(scene: FieldScene, k: int, cal: Calibration, spec: dict) -> tuple[Tensor, Tensor, Tensor]:
-    """Heliostat k's learned spots on the calibration target at the equivalent sun of each design point:
-    (S, 3) equivalent sun vectors, (S, 2) their azimuth, elevation (rad), (S, Hc, Wc) flux (W/m^2);
-    ConfigError where an equivalent sun is below the horizon."""
-    name, device = scene.names[k], scene.aims.device
+def equivalent_suns(scene: FieldScene, k: int, cal: Calibration) -> tuple[Tensor, Tensor]:
+    """Heliostat k's equivalent calibration sun of each design point (physics.carry.equivalent_sun):
+    (S, 3) unit vectors and (S, 2) their azimuth, elevation (rad); ConfigError where one is below the
+    horizon."""
+    name = scene.names[k]
     suns = sun_vector(scene.azimuth, scene.elevation)  # (S, 3)
     position = scene.true[k].position.to(suns)
     equivalent = torch.stack([equivalent_sun(position, scene.aims[k], s, cal.target.aim_point) for s in suns])
@@ -293,12 +293,21 @@ def learned_spots(scene: FieldScene, k: int, cal: Calibration, spec: dict) -> tu
                 f"is {math.degrees(e):.1f} deg below the horizon: no calibration image stands in "
                 "for it (choose a higher design sun)"
             )
+    return equivalent, torch.stack((az, el), -1)
+
+
+def learned_spots(scene: FieldScene, k: int, cal: Calibration, spec: dict) -> tuple[Tensor, Tensor, Tensor]:
+    """Heliostat k's learned spots on the calibration target at the equivalent sun of each design point:
+    (S, 3) equivalent sun vectors, (S, 2) their azimuth, elevation (rad) (`equivalent_suns`), (S, Hc,
+    Wc) flux (W/m^2)."""
+    equivalent, az_el = equivalent_suns(scene, k, cal)
+    az, el = az_el.unbind(-1)
     generator = torch.Generator().manual_seed(spec["seed"])
     with torch.no_grad():
         learned = cal.model.predict(
             torch.rad2deg(az).float().cpu(), torch.rad2deg(el).float().cpu(), generator
         )
-    return equivalent, torch.stack((az, el), -1), learned.to(device=device, dtype=torch.float64) * cal.scale
+    return equivalent, az_el, learned.to(device=scene.aims.device, dtype=torch.float64) * cal.scale
 
 
 def hybrid_spot(scene: FieldScene, k: int, cal: Calibration, learned: Tensor, ideal: FieldFlux,
@@ -327,9 +336,10 @@ def as_fitted(model: SpotModel) -> tuple[Heliostat, float | None] | None:
 
 
 def traced_spots(scene: FieldScene, measured: list[int], cals: list[Calibration], effects: dict, dni: float,
-                 cells: int, device: torch.device) -> dict[int, Tensor]:
-    """{layout index: (S, H, W) W/m^2} the receiver spots of the heliostats `measured` (layout
-    indices, their calibrations `cals`) whose model is a fitted physics model (`as_fitted`): one
+                 cells: int, device: torch.device) -> dict[int, tuple[Tensor, Tensor]]:
+    """{layout index: ((S, H, W) W/m^2, (S,) W)} the receiver spots and reflected powers of the
+    heliostats `measured` (layout indices, their calibrations `cals`) whose model is a fitted
+    physics model (`as_fitted`): one
     field trace under the model physics `effects` (no "fit" values) with those heliostats as fitted
     and every other one ideal, so shading and blocking are the tracer's. Every heliostat in
     `measured` must be among the scene's asked spots (scene.measured)."""
@@ -347,7 +357,7 @@ def traced_spots(scene: FieldScene, measured: list[int], cals: list[Calibration]
     own_tensors = {**effects, **{name: {} for name in TENSOR_EFFECTS}}  # each heliostat's own (fitted or none)
     flux, _ = trace_field(scene, own_tensors, geometry, dni, cells, device, slopes)
     spots = flux.asked_spots()
-    return {k: spots[:, scene.measured.index(k)] for k in fits}
+    return {k: (spots[:, scene.measured.index(k)], flux.budget["reflected"][:, k]) for k in fits}
 
 
 def measured_spots(
@@ -359,16 +369,17 @@ def measured_spots(
     ideal: FieldFlux,
     optics: dict[str, Optics],
     spec: dict,
-    traced: Tensor | None = None,
+    traced: tuple[Tensor, Tensor] | None = None,
 ) -> tuple[dict[str, Tensor], dict]:
     """Heliostat k's (the j-th measured) spots {SPOTS: (S, H, W) W/m^2} and its details: equivalent
     sun positions (deg), their angle to the nearest train image's sun (deg), the reflected power (W)
-    the hybrid map books for it, and how its hybrid spot was made. `traced`: its fit's spot traced on
-    the receiver (`traced_spots`), the hybrid spot of a physics model; None: its learned spot carried."""
+    the hybrid map books for it, and how its hybrid spot was made. `traced`: its fit's spot and
+    reflected power traced on the receiver (`traced_spots`), a physics model's, which is then not
+    asked for its target spots; None: its learned spot carried, its power from that spot."""
     device = scene.aims.device
     suns = sun_vector(scene.azimuth, scene.elevation)  # (S, 3)
     position = scene.true[k].position.to(suns)
-    equivalent, az_el, learned = learned_spots(scene, k, cal, spec)
+    equivalent, az_el = equivalent_suns(scene, k, cal)
     az, el = az_el.unbind(-1)
     calibration = resolve(cal.world_effects, scene.true[k], spec["dni_w_m2"])
     with torch.no_grad():
@@ -385,14 +396,20 @@ def measured_spots(
         )
     d_r, d_c = (scene.aims[k] - position).norm(), (cal.target.aim_point - position).norm()
     truth_factor = _factors(truth, k, optics["world"], calibration.optics, d_r, d_c)
-    normals = torch.stack([commanded_normal(position, scene.aims[k], s) for s in suns])
-    incidence = (normals * suns).sum(-1) / (normals * equivalent).sum(-1)
-    learned_w = learned.sum((-2, -1)) * cal.target.pixel_area
-    unshaded = 1 - ideal.budget["shaded"][:, k] / ideal.budget["incident"][:, k]
+    if traced is None:
+        _, _, learned = learned_spots(scene, k, cal, spec)
+        normals = torch.stack([commanded_normal(position, scene.aims[k], s) for s in suns])
+        incidence = (normals * suns).sum(-1) / (normals * equivalent).sum(-1)
+        unshaded = 1 - ideal.budget["shaded"][:, k] / ideal.budget["incident"][:, k]
+        learned_w = learned.sum((-2, -1)) * cal.target.pixel_area
+        hybrid, reflected = (hybrid_spot(scene, k, cal, learned, ideal, optics["model"]),
+                             learned_w * incidence * unshaded / _transmittance(optics["model"], d_c))
+    else:
+        hybrid, reflected = traced
     spots = {
         "truth": truth.asked_spots()[:, j],
         "ideal": ideal.asked_spots()[:, j],
-        "hybrid": hybrid_spot(scene, k, cal, learned, ideal, optics["model"]) if traced is None else traced,
+        "hybrid": hybrid,
         "carried_truth": _carry(true_target, cal.target, scene, k, suns, optics["model"])
         * truth_factor[:, None, None],
     }
@@ -400,7 +417,7 @@ def measured_spots(
     details = {
         "equivalent_sun_deg": torch.rad2deg(az_el).tolist(),
         "nearest_calibration_deg": nearest.tolist(),
-        "reflected_w": (learned_w * incidence * unshaded / _transmittance(optics["model"], d_c)).tolist(),
+        "reflected_w": reflected.tolist(),
         "hybrid_from": "carried learned spot" if traced is None else "traced fit",
     }
     return spots, details

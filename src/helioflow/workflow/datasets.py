@@ -5,6 +5,8 @@ effects, the models trained on them, and a plant's settings.
 from __future__ import annotations
 
 import copy
+import functools
+import json
 import re
 from pathlib import Path
 
@@ -139,10 +141,17 @@ def has_plant_table(config: dict) -> bool:
 def plant_settings(config: dict) -> dict:
     """Config `plant` with the schema's defaults filled in (helioflow.schema): how a plant's
     heliostats are fitted (`fit`) and batched (`group_size`), the plant fit (`shared`), the table's
-    model and pointing limit, the flux maps (`flux`)."""
+    model and pointing limit, the flux maps (`flux`). A fresh copy each call; the parameter
+    functions ask for it per heliostat, so the filling is done once per distinct section."""
+    return json.loads(_filled_plant(json.dumps(config.get("plant"), sort_keys=True)))
+
+
+@functools.lru_cache(maxsize=16)
+def _filled_plant(section: str) -> str:
+    """plant_settings of a `plant` section given as JSON, as JSON."""
     from helioflow.schema import with_defaults
 
-    return with_defaults(config.get("plant"), "plant")
+    return json.dumps(with_defaults(json.loads(section), "plant"))
 
 
 def plant_shared_settings(config: dict) -> dict | None:
