@@ -90,6 +90,7 @@ def test_drt_on_two_real_images_chooses_its_freedom_and_the_written_heliostat_sa
     freed = {"design": set(), "tracking": {"tracking"}, "canting": {"tracking", "canting"},
              "full": {"tracking", "canting", "surface"}}[choice.chosen]
     assert set(model.fitted.tensors) == freed
+    assert model.fitted.uncertainty.refits == 2  # its sigma at least the spread of the chosen level's 2 refits
     written = fitted_heliostat(lower / "drt.pt")
     assert written["freedom"]["chosen"] == choice.chosen
     kept = ({"tracking", "canting", "surface", "slope error"} - freed

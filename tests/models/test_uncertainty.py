@@ -16,7 +16,8 @@ from helioflow.models.physics_fit import (
     spot_spread,
     with_uncertainty,
 )
-from helioflow.models.uncertainty import STRUCTURED, FitUncertainty
+from helioflow.models.uncertainty import STRUCTURED, FitUncertainty, widened_by_refits
+from helioflow.physics.heliostat import TRACKING_PARAMETERS
 
 TRUTH = {"tracking": torch.tensor([0.8, -0.5, 0.3, -0.6, 0.4])}
 SETTINGS = FitSettings(steps=60, rounds=2, gauss_newton_steps=3, search_iterations=20)
@@ -140,3 +141,20 @@ def test_the_centroids_derivative_by_autograd_is_the_central_difference_one(case
     assert np.abs(a - b).max() < 0.02 * np.abs(b).max()
     assert by_autograd["centroid_sigma_mrad"].numpy() == pytest.approx(
         by_differences["centroid_sigma_mrad"].numpy(), rel=0.02)
+
+
+def test_refits_with_one_image_left_out_widen_each_sigma_to_their_jackknife_spread_and_keep_the_correlations():
+    names = [f"tracking.{n}_mrad" for n in TRACKING_PARAMETERS] + ["sunshape.sigma_mrad"]
+    covariance = 0.01**2 * (0.5 * np.eye(6) + 0.5)  # sigma 0.01 each, correlation 0.5
+    u = FitUncertainty(names, ["mrad"] * 6, np.zeros(6), covariance, 1.0, 1.0, 1.0)
+    refits = [FitResult({"sunshape": {"sigma_mrad": 2.5 + 1e-3 * i}},
+                        {"tracking": torch.tensor([a, 0.0, 0.0, 0.0, 0.0])}) for i, a in enumerate((1.0, 2.0, 3.0))]
+    widened = widened_by_refits(u, refits)
+    # the first tracking entry scatters over the refits: (n-1)/n sum (a - mean a)^2 = 2/3 * 2
+    assert widened.sigma[0] == pytest.approx(np.sqrt(4 / 3))
+    # the others do not move, and the sun's width moves less than its sigma: both keep the end point's sigma
+    assert np.allclose(widened.sigma[1:], 0.01)
+    assert np.allclose(widened.correlation(), u.correlation())
+    assert widened.refits == 3 and FitUncertainty.from_state(widened.state()).refits == 3
+    assert widened.as_json()["refits"] == 3
+    assert widened_by_refits(u, refits[:1]) is u  # one refit has no spread to read

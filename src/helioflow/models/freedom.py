@@ -21,9 +21,13 @@ So the freedom is chosen as a model is chosen by cross-validation:
 - one training image leaves nothing to test on: the design is kept.
 
 What is not fitted stays at the design: its value is the prior, and the written heliostat says so
-(scoring/fitted_heliostat.py). The levels cost one fit each per training image, so `auto` chooses
-only up to SELECT_MAX_IMAGES training images; with more, everything is fitted (docs/results.md,
-"drt on real images": where the images are that many, the full fit beats the ideal heliostat).
+(scoring/fitted_heliostat.py). What is fitted carries a sigma at least the scatter of the chosen level's
+leave-one-out fits (the jackknife, models/uncertainty.py `widened_by_refits`): on a handful of real images
+the residual is model mismatch more than noise, and the covariance at the fit's end point alone is too sure.
+
+The levels cost one fit each per training image, so `auto` chooses only up to SELECT_MAX_IMAGES
+training images; with more, everything is fitted (docs/results.md, "drt on real images": where the
+images are that many, the full fit beats the ideal heliostat).
 """
 
 from __future__ import annotations
@@ -51,11 +55,15 @@ class FreedomChoice:
         reason: one sentence for a user.
         scores: {level: held-out misplaced flux per training image left out} (empty when no
             choice was made by leave-one-out).
+        refits: {level: its fits, one per training image left out}: their scatter is the
+            jackknife's variance of the fit on all images (models/uncertainty.py `widened_by_refits`);
+            not written to the model file.
     """
 
     chosen: str
     reason: str
     scores: dict[str, list[float]] = field(default_factory=dict)
+    refits: dict[str, list[FitResult]] = field(default_factory=dict, repr=False)
 
     def as_json(self) -> dict:
         """The choice, its reason and the held-out scores (each level's mean and standard error too)."""
@@ -87,12 +95,14 @@ def choose_freedom(levels: dict[str, dict], data: Measurements,
         return FreedomChoice("design", "one training image: no other image to test a freer fit on, so the "
                                        "heliostat stays as designed")
     scores: dict[str, list[float]] = {k: [] for k in levels}
+    refits: dict[str, list[FitResult]] = {k: [] for k in levels}
     for out in range(n):
         keep = [i for i in range(n) if i != out]
         subset = Measurements(data.images[keep], data.azimuth_deg[keep], data.elevation_deg[keep], data.scale)
         start = None
         for level, effects in levels.items():
             start = fit(effects, subset, start)
+            refits[level].append(start)
             predicted = predict(start, data.azimuth_deg[out:out + 1], data.elevation_deg[out:out + 1])
             scores[level].append(float(misplaced_flux(predicted, data.images[out:out + 1])[0]))
     mean = {k: float(np.mean(v)) for k, v in scores.items()}
@@ -103,7 +113,7 @@ def choose_freedom(levels: dict[str, dict], data: Measurements,
               + ", ".join(f"{k} {mean[k]:.3f}" for k in levels)
               + f"; the simplest within one standard error of the best ({best}, {mean[best]:.3f} + "
                 f"{bar - mean[best]:.3f})")
-    return FreedomChoice(chosen, reason, scores)
+    return FreedomChoice(chosen, reason, scores, refits)
 
 
 def _standard_error(values: list[float]) -> float:

@@ -31,7 +31,7 @@ from helioflow.errors import ConfigError
 from helioflow.models.base import SpotModel, TrainingData
 from helioflow.models.freedom import CHOICES, FREEDOMS, SELECT_MAX_IMAGES, FreedomChoice, choose_freedom
 from helioflow.models.physics_fit import FitResult, FitSettings, Measurements, fit_effects, with_uncertainty
-from helioflow.models.uncertainty import FitUncertainty
+from helioflow.models.uncertainty import FitUncertainty, widened_by_refits
 from helioflow.physics.effects import FIT, REGISTRY, check_effects
 from helioflow.physics.heliostat import Heliostat
 from helioflow.physics.scene import Scene, dataset_scene
@@ -261,6 +261,15 @@ class DrtModel(RaytraceModel):
     def __init__(self, config: DrtConfig, image_shape: tuple[int, int]):
         super().__init__(config, image_shape)
         self.freedom: FreedomChoice | None = None
+
+    def prepare(self, data: TrainingData, checkpoint_path: str | os.PathLike | None = None) -> None:
+        """The fit of RaytraceModel.prepare at the freedom `effects_to_fit` takes; where that was chosen
+        by leave-one-out, every sigma at least the jackknife's over the chosen level's refits
+        (uncertainty.widened_by_refits)."""
+        super().prepare(data, checkpoint_path)
+        refits = [] if self.freedom is None else self.freedom.refits.get(self.freedom.chosen, [])
+        if self.fitted.uncertainty is not None:
+            self.fitted.uncertainty = widened_by_refits(self.fitted.uncertainty, refits)
 
     def effects_to_fit(self, heliostat: Heliostat, measured: Measurements) -> dict:
         """The drt effect list at the configured freedom, or at the one `choose_freedom` picks."""
