@@ -211,3 +211,34 @@ def test_the_defaults_the_code_keeps_are_valid_by_the_schema():
     for kind in ("fermat", "radial"):
         resolvable.validate({"kind": kind, "n": 10, "min_radius_m": 20.0, **LAYOUT_DEFAULTS})
     assert set(LAYOUT_DEFAULTS) == set(layout["properties"]) - {"kind", "n", "min_radius_m", "positions", "csv"}
+
+
+def test_the_constants_the_code_keeps_agree_with_the_schema():
+    """CENTERED_DEFAULT and SITE_ALTITUDE_M stay in the code (see their comments): `centered`'s is
+    the value the schema's description calls the default, of the values it allows (CENTERED_MODES),
+    and no schema default; a site's altitude is the schema's default of datasets.<name>.site."""
+    from helioflow.data.images import SITE_ALTITUDE_M
+    from helioflow.data.paint import CENTERED_DEFAULT, CENTERED_MODES
+    from helioflow.schema import load_schema
+
+    dataset = load_schema()["properties"]["datasets"]["additionalProperties"]["properties"]
+    centered = dataset["centered"]
+    assert tuple(centered["enum"]) == CENTERED_MODES and "default" not in centered
+    assert f"({CENTERED_DEFAULT}, the default)" in centered["description"]
+    assert dataset["site"]["properties"]["altitude_m"]["default"] == SITE_ALTITUDE_M
+
+
+def test_a_named_entry_is_filled_with_the_schema_defaults():
+    """with_defaults reaches a named entry (`heliostats.<name>`), as HeliostatSpec.from_config fills an
+    inline heliostat or a spec written by hand."""
+    from helioflow.data.surfaces import HeliostatSpec
+    from helioflow.schema import with_defaults
+
+    section = {"position_m": [0.0, 30.0, 1.0], "mount": "az_el",
+               "facets": {"rows": 1, "cols": 2, "width_m": 1.0, "height_m": 1.0}}
+    filled = with_defaults(section, "heliostats", "h")
+    assert filled["facets"]["gap_m"] == 0.0 and filled["control_points"] == 6 and filled["seed"] == 0
+    assert filled["canting_focal_distance_m"] is None and "gap_m" not in section["facets"]  # a copy
+    spec = HeliostatSpec.from_config("h", section)
+    assert (spec.gap_m, spec.control_points, spec.deformation_mm, spec.tracking_error_mrad, spec.canting_error_mrad,
+            spec.seed, spec.facet_focal_length_m) == (0.0, 6, 0.0, 0.0, 0.0, 0, None)

@@ -199,11 +199,12 @@ def cmd_diagnose(args) -> None:
 
 def cmd_evaluate(args) -> None:
     """`helioflow evaluate`: score a model on every split of a dataset."""
+    from helioflow.schema import with_defaults
     from helioflow.scoring.evaluation import evaluate_model
 
-    spec = read_spec(args.spec) if args.spec else {}
+    spec = with_defaults(read_spec(args.spec) if args.spec else {}, "evaluation")  # the schema's gan_samples if unset
     result = evaluate_model(args.model, args.dataset, args.metrics, args.per_image, args.grid, args.psnr,
-                            gan_samples=spec.get("gan_samples", 64), device=spec.get("device", "cpu"))
+                            gan_samples=spec["gan_samples"], device=spec.get("device", "cpu"))
     for split, m in result["splits"].items():
         logging.info("%s: %s", split, m)
 

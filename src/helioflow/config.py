@@ -240,7 +240,7 @@ def _check_references(config: dict, source: str) -> None:
 
     for network, settings in (config.get("networks") or {}).items():
         split_settings(network, settings or {}, config["seed"], where=f"{source}: networks.{network}")
-    plant_drt = config["plant"]["fit"].get("drt", {})  # over networks.drt, for every plant heliostat
+    plant_drt = config["plant"]["fit"]["drt"]  # over networks.drt, for every plant heliostat
     split_settings("drt", {**(config.get("networks") or {}).get("drt", {}), **plant_drt}, config["seed"],
                    where=f"{source}: plant.fit.drt (over networks.drt)")
     for network in (config.get("data_efficiency") or {}).get("networks", []):

@@ -41,14 +41,16 @@ def fill_defaults(node, schema: dict, root: dict) -> None:
 
 
 def with_defaults(node: dict | None, *path: str) -> dict:
-    """`node`, the config's part at the key path `path` (("plant",), ("field", "layout"); None: absent,
-    so its schema default or {}), with the schema's defaults filled in: a copy."""
+    """`node`, the config's part at the key path `path` (("plant",), ("field", "layout"); a named entry
+    by its name, ("heliostats", name); None: absent, so its schema default or {}), with the schema's
+    defaults filled in: a copy."""
     schema = load_schema()
     sub = schema
     for key in path:
         if "$ref" in sub:
             sub = schema["definitions"][sub["$ref"].rsplit("/", 1)[-1]]
-        sub = sub["properties"][key]
+        properties = sub.get("properties", {})
+        sub = properties[key] if key in properties else sub["additionalProperties"]
     filled = copy.deepcopy(node if node is not None else sub.get("default", {}))
     fill_defaults(filled, sub, schema)
     return filled

@@ -96,6 +96,10 @@ TARGET_NAME = "target"  # the one target of an images dataset (attribute target_
 ASPECT_TOLERANCE = 0.02  # image and target width : height ratios differing by more: a warning
 STANDARD_TEMPERATURE_C = 15.0
 OBSERVED_WAVELENGTH_UM = 0.55
+# a site without altitude_m stands at sea level: the schema's default of datasets.<name>.site.altitude_m, which
+# tests/test_config.py checks it against; here too for the sites the schema fills nothing into (plan.site, a
+# dataset file's recorded site), as a schema default for plan.site would change the plan rule's parameters
+SITE_ALTITUDE_M = 0.0
 
 
 @dataclass(frozen=True)
@@ -257,8 +261,8 @@ def parse_timestamp(text: str, where: str) -> datetime:
 
 def sun_position(timestamps: list[datetime], site: dict) -> tuple[np.ndarray, np.ndarray]:
     """(azimuth_deg, elevation_deg), each (N,), of the sun at timezone-aware `timestamps` seen from
-    `site` {latitude_deg, longitude_deg, altitude_m}: helioflow's azimuth (0 = south, +90 = east) and
-    the apparent (refracted) elevation (module docstring)."""
+    `site` {latitude_deg, longitude_deg, altitude_m (default SITE_ALTITUDE_M)}: helioflow's azimuth
+    (0 = south, +90 = east) and the apparent (refracted) elevation (module docstring)."""
     import astropy.units as u
     from astropy.utils import iers
 
@@ -270,7 +274,7 @@ def sun_position(timestamps: list[datetime], site: dict) -> tuple[np.ndarray, np
     from astropy.coordinates import AltAz, EarthLocation, get_sun
     from astropy.time import Time
 
-    altitude = float(site.get("altitude_m", 0.0))
+    altitude = float(site.get("altitude_m", SITE_ALTITUDE_M))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         location = EarthLocation.from_geodetic(lon=site["longitude_deg"] * u.deg, lat=site["latitude_deg"] * u.deg,

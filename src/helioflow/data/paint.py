@@ -111,6 +111,8 @@ CALIBRATION_SUFFIX = "-calibration-properties.json"
 CORNERS = ("upper_left", "upper_right", "lower_left", "lower_right")
 CONTROL_POINTS = 6  # B-spline control points per facet side of the (zero) surface deformation
 CENTERED_MODES = ("place", "skip")  # option `centered`: place centered-only measurements, or leave them out
+# not a schema default: `centered` is for PAINT datasets alone, and a default in the schema would give every other
+# dataset the key, which its checks refuse (config._PAINT_KEYS); tests/test_config.py checks both against the schema
 CENTERED_DEFAULT = "place"
 REPAIR = "remove this measurement (its calibration-properties.json and PNG) or repair the image"
 # side (m) of the square window a <id>-flux-centered.png spans, by its pixels per side (module docstring):

@@ -24,6 +24,7 @@ import torch
 from helioflow.data.hdf5 import read_arrays, write_arrays
 from helioflow.errors import DataError
 from helioflow.physics.heliostat import TRACKING_PARAMETERS, Heliostat, ideal_heliostat, without_planes
+from helioflow.schema import with_defaults
 
 SCHEMA = "helioflow.heliostat/1"
 
@@ -50,13 +51,14 @@ class HeliostatSpec:
 
     @staticmethod
     def from_config(name: str, d: dict) -> HeliostatSpec:
-        """The spec of heliostat `name` from its config entry `d` (defaults for the optional keys)."""
+        """The spec of heliostat `name` from its config entry `d`, the optional keys the schema's defaults
+        where `d` lacks them (an images dataset's inline ideal heliostat, a spec written by hand)."""
+        d = with_defaults(d, "heliostats", name)
         f = d["facets"]
         return HeliostatSpec(
             name, tuple(d["position_m"]), d["mount"], f["rows"], f["cols"], f["width_m"], f["height_m"],
-            f.get("gap_m", 0.0), d.get("canting_focal_distance_m"), d.get("facet_focal_length_m"),
-            d.get("control_points", 6), d.get("deformation_mm", 0.0), d.get("tracking_error_mrad", 0.0),
-            d.get("canting_error_mrad", 0.0), d.get("seed", 0),
+            f["gap_m"], d["canting_focal_distance_m"], d["facet_focal_length_m"], d["control_points"],
+            d["deformation_mm"], d["tracking_error_mrad"], d["canting_error_mrad"], d["seed"],
         )
 
     def ideal(self) -> Heliostat:

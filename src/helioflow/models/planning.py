@@ -176,14 +176,16 @@ def plan_measurements(model_path, dataset_path, settings: dict, output=None, dev
     [[azimuth_deg, elevation_deg], ...] (for "predictions"; default: the candidates), and the
     candidates: `sun` [[azimuth_deg, elevation_deg], ...], or the sun path: site {latitude_deg,
     longitude_deg, altitude_m} (default: the dataset's own), start (ISO 8601, UTC), days,
-    every_minutes, min_elevation_deg.
+    every_minutes, min_elevation_deg: config `plan`'s keys, the schema's defaults where unset.
     """
     from helioflow.data.hdf5 import read_dataset
     from helioflow.errors import DataError
     from helioflow.io import write_text_atomic
     from helioflow.models.physics_fit import initial_tensors
     from helioflow.models.registry import load_model
+    from helioflow.schema import with_defaults
 
+    settings = with_defaults(settings, "plan")  # a spec written by hand may leave them out
     model, info = load_model(model_path, device)
     fit = getattr(model, "fitted", None)
     if fit is None or fit.uncertainty is None or not fit.uncertainty.names:
@@ -200,7 +202,7 @@ def plan_measurements(model_path, dataset_path, settings: dict, output=None, dev
     state = end_state(scene, fit, az, el, model.scale, loss, masks)
     information = image_information(state, fit.fitted, masks, fit.uncertainty)
     pair = tuple(settings["pair"]) if settings.get("pair") else None
-    criterion = settings.get("criterion", "d_optimal")
+    criterion = settings["criterion"]
     predictions = None
     if criterion == "predictions":  # the centroids at `predict_at`, or at the candidates themselves
         at = np.asarray(settings["predict_at"], dtype=float).reshape(-1, 2) if settings.get("predict_at") else \
@@ -209,7 +211,7 @@ def plan_measurements(model_path, dataset_path, settings: dict, output=None, dev
         spread = predicted_spread(end_state(scene, fit, where_az, where_el, model.scale, loss, masks), fit.fitted,
                                   masks, fit.uncertainty)
         predictions = spread["centroid_jacobian"].flatten(0, 1)
-    picks = plan(information, fit.uncertainty, int(settings.get("images", 8)), criterion, settings.get("targets"),
+    picks = plan(information, fit.uncertainty, int(settings["images"]), criterion, settings.get("targets"),
                  pair, predictions)
     names = fit.uncertainty.names
     result = {
@@ -254,8 +256,7 @@ def _candidates(settings: dict, attrs: dict, dataset_path) -> tuple[list | None,
         raise ConfigError(f"plan: {dataset_path} records no site: give plan.site {{latitude_deg, longitude_deg, "
                           f"altitude_m}} or plan.sun [[azimuth_deg, elevation_deg], ...]")
     start = datetime.fromisoformat(str(settings.get("start")).replace("Z", "+00:00"))
-    days, every, low = float(settings.get("days", 7)), float(settings.get("every_minutes", 30)), \
-        float(settings.get("min_elevation_deg", 10))
+    days, every, low = float(settings["days"]), float(settings["every_minutes"]), float(settings["min_elevation_deg"])
     times, azimuth, elevation = sun_path(site, start, days, every, low)
     if not times:
         raise ConfigError(f"plan: the sun stands below {low} deg at every time of the {days} days from {start}")

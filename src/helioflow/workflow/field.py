@@ -83,9 +83,10 @@ def layout_positions(layout: dict, mirror: list[float] | None) -> list[list[floa
 
 
 def mirror_size(heliostat: dict) -> tuple[float, float]:
-    """(width, height) in m of a heliostat section's mirror: its facets and the gaps between them."""
+    """(width, height) in m of a heliostat section's mirror (validated: gap_m the schema's default where
+    not set): its facets and the gaps between them."""
     f = heliostat["facets"]
-    gap = f.get("gap_m", 0.0)
+    gap = f["gap_m"]
     return f["cols"] * f["width_m"] + (f["cols"] - 1) * gap, f["rows"] * f["height_m"] + (f["rows"] - 1) * gap
 
 
@@ -96,8 +97,9 @@ def field_names(n: int) -> list[str]:
 
 
 def measured_indices(field: dict, n: int) -> list[int]:
-    """Sorted layout indices of the measured heliostats: measured.indices, or a seeded random
-    choice (numpy default_rng(measured.seed)) of max(1, round(fraction * n)) heliostats."""
+    """Sorted layout indices of the measured heliostats of a validated `field`: measured.indices, or a
+    seeded random choice (numpy default_rng(measured.seed), the schema's default where not set) of
+    max(1, round(fraction * n)) heliostats."""
     measured = field["measured"]
     if "indices" in measured:
         bad = [i for i in measured["indices"] if i >= n]
@@ -108,7 +110,7 @@ def measured_indices(field: dict, n: int) -> list[int]:
     import numpy as np
 
     count = max(1, round(measured["fraction"] * n))
-    return sorted(np.random.default_rng(measured.get("seed", 0)).choice(n, count, replace=False).tolist())
+    return sorted(np.random.default_rng(measured["seed"]).choice(n, count, replace=False).tolist())
 
 
 def field_measured(config: dict) -> list[str]:

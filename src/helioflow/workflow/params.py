@@ -42,7 +42,7 @@ def trace_params(config: dict, dataset: str) -> dict:
         "sun": copy.deepcopy(ds["sun"]),
         "splits": copy.deepcopy(ds["splits"]),
         "trace": copy.deepcopy(ds["trace"]),
-        "window_m": ds.get("window_m", "auto"),
+        "window_m": ds["window_m"],
         "target": copy.deepcopy(config["target"]),
         "world_effects": world_effects(config, dataset),
         "dni_w_m2": config["dni_w_m2"],
@@ -185,7 +185,7 @@ def train_params(config: dict, dataset: str, model: str) -> dict:
         raise ConfigError(f"unknown network {network!r}: config networks has {', '.join(networks)}")
     settings = copy.deepcopy(networks[network] or {})
     if network == "drt" and PLANT_KEY in config["datasets"][dataset]:
-        settings.update(plant_settings(config)["fit"].get("drt", {}))
+        settings.update(plant_settings(config)["fit"]["drt"])
     if network in PHYSICS_MODELS:
         settings.update(effects=model_effects(config, dataset), heliostat_path=heliostat_path(config, dataset))
     shared = shared_of(config, dataset) if network in PHYSICS_MODELS else None
@@ -215,7 +215,7 @@ def diagnose_params(config: dict, dataset: str) -> dict:
     shared = shared_of(config, dataset)
     settings = {**DIAGNOSIS_DEFAULTS, **copy.deepcopy(config.get("diagnosis") or {})}
     if PLANT_KEY in config["datasets"][dataset]:
-        settings.update(plant_settings(config)["fit"].get("diagnosis", {}))
+        settings.update(plant_settings(config)["fit"]["diagnosis"])
     return {"effects": model_effects(config, dataset), "settings": settings,
             "device": config["device"], **({"shared": shared} if shared else {})}
 

@@ -16,8 +16,8 @@ PARAMETERS = (
 
 
 def apply(build: Build, params: dict) -> None:
-    """The sun shape (pillbox unless `kind` says otherwise)."""
-    build.sun = SunShape.from_config({"kind": params.get("kind", "pillbox"),
+    """The sun shape (the parameter `kind`'s default, pillbox, unless `kind` says otherwise)."""
+    build.sun = SunShape.from_config({"kind": params.get("kind", PARAMETERS[0].default),
                                       **{k: v for k, v in params.items() if k != "kind"}})
 
 
