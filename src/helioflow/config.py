@@ -491,7 +491,8 @@ def _check_images_dataset(config: dict, name: str, where: str) -> None:
         raise ConfigError(f"{where}: an images dataset's heliostat is named like the dataset and written to "
                           f"surfaces/{name}.h5, as is the configured heliostat {name!r}; rename the dataset")
     for other, o in config["datasets"].items():
-        if o["source"] == "paint" and o["heliostat"] == name:
+        listed = o.get("heliostats") if isinstance(o.get("heliostats"), list) else []  # a PAINT plant's, when listed
+        if o["source"] == "paint" and name in [o.get("heliostat"), *listed]:
             raise ConfigError(f"{where}: an images dataset's heliostat is named like the dataset and written to "
                               f"surfaces/{name}.h5, as is datasets.{other}'s PAINT heliostat; rename the dataset")
     if not Path(ds["images_dir"]).is_dir():

@@ -96,3 +96,11 @@ def test_a_bad_images_plant_names_the_key_the_file_and_what_was_expected(tmp_pat
     expected = message.format(csv=tmp_path / "campaign.csv", tmp=tmp_path, heliostat="{heliostat}")
     with pytest.raises(ConfigError, match=re.escape(expected)):
         validate_config(config)
+
+
+def test_an_images_plant_beside_a_paint_plant_validates(tmp_path):
+    config = _config(tmp_path)
+    config["datasets"]["paint_plant"] = {"source": "paint", "paint_dir": str(WORLD), "heliostats": ["P000", "P001"],
+                                         "resolution": [32, 32]}
+    config = expand_config(validate_config(config))  # the PAINT plant has no `heliostat` of its own to compare
+    assert set(plant_groups(config)) == {"own", "paint_plant"}
