@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from support.field import build, tiny_field
+from support.field import PIXEL, build, gaussians, tiny_field
 
 from helioflow.config import validate_config
 from helioflow.data.surfaces import HeliostatSpec, true_heliostat
@@ -17,14 +17,6 @@ from helioflow.field.metrics import spot_metrics
 from helioflow.physics.effects import resolve
 from helioflow.physics.field import FieldHeliostats, field_flux, flat_receiver
 from helioflow.workflow import aim_paths, optimise_aim_params, report_inputs
-
-PIXEL = (0.05, 0.05)
-
-
-def gaussians(centres_px: list[tuple[float, float]], sigma_px: float, peak: float, size: int = 128) -> torch.Tensor:
-    """(N, size, size) Gaussian spots (W/m^2) at (row, column) offsets from the grid centre (px)."""
-    y, x = torch.meshgrid(*(torch.arange(size, dtype=torch.float64) - size / 2 + 0.5,) * 2, indexing="ij")
-    return torch.stack([peak * torch.exp(-((x - c) ** 2 + (y - r) ** 2) / (2 * sigma_px**2)) for r, c in centres_px])
 
 
 def test_whole_pixel_moves_shift_the_spot_exactly_and_conserve_its_power():

@@ -1,8 +1,10 @@
-"""The tiny field the field tests compose: its config and its measured heliostats' models."""
+"""The tiny field the field tests compose: its config and its measured heliostats' models; Gaussian
+spots on a receiver grid for the aim tests."""
 
 from collections.abc import Callable
 from pathlib import Path
 
+import torch
 import yaml
 
 from helioflow.config import validate_config
@@ -19,6 +21,13 @@ from helioflow.workflow import (
 )
 
 WORKFLOW = Path(__file__).resolve().parents[1] / "workflow"
+PIXEL = (0.05, 0.05)  # the aim tests' receiver pixel (m)
+
+
+def gaussians(centres_px: list[tuple[float, float]], sigma_px: float, peak: float, size: int = 128) -> torch.Tensor:
+    """(N, size, size) Gaussian spots (W/m^2) at (row, column) offsets from the grid centre (px)."""
+    y, x = torch.meshgrid(*(torch.arange(size, dtype=torch.float64) - size / 2 + 0.5,) * 2, indexing="ij")
+    return torch.stack([peak * torch.exp(-((x - c) ** 2 + (y - r) ** 2) / (2 * sigma_px**2)) for r, c in centres_px])
 
 
 def tiny_field(edit: Callable[[dict], None] | None = None) -> dict:

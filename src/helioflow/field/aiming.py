@@ -45,6 +45,7 @@ from helioflow.device import resolve_device
 from helioflow.errors import ConfigError
 from helioflow.field.aim import SpotPatches, optimise
 from helioflow.field.compose import (
+    Calibration,
     FieldScene,
     build_scene,
     hybrid_spot,
@@ -55,14 +56,23 @@ from helioflow.field.compose import (
     without_fit,
 )
 from helioflow.field.figure import plot_aim_maps
+from helioflow.field.margin import (
+    displacement_draws,
+    optimise_with_margin,
+    peak_quantile,
+    pointing_covariances,
+    tracking_covariance,
+)
 from helioflow.io import write_text_atomic
 from helioflow.physics.field import flat_receiver
+from helioflow.physics.geometry import sun_vector
 from helioflow.physics.target import Target
 
 log = logging.getLogger(__name__)
 
 MODELS = ("ideal", "hybrid", "truth")
 STRATEGIES = ("default", *MODELS)
+MARGIN = "hybrid_margin"  # the hybrid's aiming that keeps the limit with keep_probability (field/margin.py)
 
 
 def extended_receiver(receiver: Target, region: float) -> Target:
@@ -79,11 +89,11 @@ def extended_receiver(receiver: Target, region: float) -> Target:
 
 
 def model_spots(
-    spec: dict, scene: FieldScene, region: float, model_paths: list[str], dataset_paths: list[str],
-    device: torch.device,
+    spec: dict, scene: FieldScene, region: float, cals: list[Calibration], device: torch.device,
 ) -> dict[str, Tensor]:
     """{model: (S, N, He, We) W/m^2} every heliostat's spot aimed at the receiver centre on the
-    extended receiver, under each of MODELS (module docstring)."""
+    extended receiver, under each of MODELS (module docstring); `cals`: the measured heliostats'
+    calibrations (compose.load_calibrations), in scene.measured's order."""
     n = len(scene.names)
     centred = dataclasses.replace(
         scene, receiver=extended_receiver(scene.receiver, region), aims=scene.receiver.center.expand(n, 3).clone(),
@@ -95,7 +105,6 @@ def model_spots(
         centred, without_fit(spec["model_effects"]), [h.ideal() for h in scene.true], dni, cells, device
     )
     hybrid = ideal.asked_spots().clone()
-    cals = load_calibrations(scene, model_paths, dataset_paths, device)
     traced = traced_spots(centred, scene.measured, cals, without_fit(spec["model_effects"]), dni, cells, device)
     for k, cal in zip(scene.measured, cals):
         if k in traced:
@@ -149,13 +158,20 @@ def optimise_aim(
     device = resolve_device(spec["device"])
     scene = build_scene(spec, device)
     limit, region = settings["limit_kw_m2"] * 1e3, settings["region"]
-    spots = model_spots(spec, scene, region, model_paths, dataset_paths, device)
+    cals = load_calibrations(scene, model_paths, dataset_paths, device)
+    spots = model_spots(spec, scene, region, cals, device)
     right, up = scene.receiver.axes()
     start = scene.receiver.to_plane(scene.aims)  # (N, 2) the default aiming
     pixel = scene.receiver.pixel_size
+    probability = settings.get("keep_probability")
+    strategies = (*STRATEGIES, MARGIN) if probability is not None else STRATEGIES
+    tracking: list[Tensor | None] = [None] * len(scene.names)
+    for k, cal in zip(scene.measured, cals):
+        tracking[k] = tracking_covariance(getattr(getattr(cal.model, "fitted", None), "uncertainty", None))
     points: dict[str, Any] = {}
-    maps: dict[str, list[np.ndarray]] = {s: [] for s in STRATEGIES}
-    moves: dict[str, list[np.ndarray]] = {s: [] for s in STRATEGIES}
+    sigmas: dict[str, dict] = {}  # per design point: the calibrated heliostats' pointing sigma on the receiver
+    maps: dict[str, list[np.ndarray]] = {s: [] for s in strategies}
+    moves: dict[str, list[np.ndarray]] = {s: [] for s in strategies}
     for i, point in enumerate(scene.points):
         chosen: dict[str, Tensor] = {"default": start}
         promised: dict[str, float | None] = {"default": None}
@@ -163,8 +179,25 @@ def optimise_aim(
             patches = SpotPatches.from_maps(spots[m][i], scene.receiver.resolution, pixel)
             result = optimise(patches, start, limit, region=region, steps=settings["steps"])
             chosen[m], promised[m] = result.offsets, result.peak_w_m2 / limit
+        margin: dict[str, Any] = {}
+        if probability is not None:  # the hybrid's map under its heliostats' pointing sigma
+            patches = SpotPatches.from_maps(spots["hybrid"][i], scene.receiver.resolution, pixel)
+            sun = sun_vector(scene.azimuth[i], scene.elevation[i]).double()
+            covariances = pointing_covariances([h.ideal() for h in scene.true], tracking, sun, scene.aims,
+                                               scene.receiver)
+            draws = displacement_draws(covariances, settings["draws"], seed=i)
+            result, bound, fraction = optimise_with_margin(patches, start, limit, draws, probability, region=region,
+                                                           steps=settings["steps"])
+            chosen[MARGIN], promised[MARGIN] = result.offsets, result.peak_w_m2 / limit
+            sigma = covariances.diagonal(dim1=-2, dim2=-1).sum(-1).sqrt()  # (N,) RMS displacement (m)
+            known = sigma[sigma > 0]
+            margin = {"bound": {"hybrid": peak_quantile(patches, chosen["hybrid"], draws, probability) / limit,
+                                MARGIN: bound / limit},
+                      "limit_fraction": fraction,
+                      "pointing_sigma_m": {"median": float(known.median()) if len(known) else 0.0,
+                                           "max": float(sigma.max()), "heliostats": len(known)}}
         row: dict[str, Any] = {}
-        for s in STRATEGIES:
+        for s in strategies:
             aims = scene.receiver.center + chosen[s][:, :1] * right + chosen[s][:, 1:] * up
             metrics, image = judge(scene, spec, i, aims, limit, device)
             maps[s].append(image)
@@ -175,8 +208,13 @@ def optimise_aim(
                 "mean_aim_move_m": float((chosen[s] - start).norm(dim=-1).mean()),
                 "aim_points_m": chosen[s].tolist(),
             }
+            if s in margin.get("bound", {}):
+                row[s]["model_peak_bound_over_limit"] = margin["bound"][s]
+        if margin:
+            row[MARGIN]["limit_fraction"] = margin["limit_fraction"]
+            sigmas[point] = margin["pointing_sigma_m"]
         bound = row["truth"]["truth_intercepted_w"]
-        for s in STRATEGIES:
+        for s in strategies:
             row[s]["intercept_of_bound"] = row[s]["truth_intercepted_w"] / bound
         points[point] = row
     result_json = {
@@ -186,11 +224,19 @@ def optimise_aim(
         "measured": [scene.names[k] for k in scene.measured],
         "network": spec["network"],
         "design_points": points,
+        **({"keep_probability": probability, "pointing_sigma_m": sigmas} if probability is not None else {}),
         "seconds": round(time.perf_counter() - start_time, 2),
         "notes": {
             "truth_*": "each strategy's aim points applied to the true field and traced there",
             "model_peak_over_limit": "what the strategy's own model (shifted spots) promised",
             "aim_points_m": "per heliostat (right, up) on the receiver from its centre (m)",
+            **({"model_peak_bound_over_limit": f"the model's peak at that aiming under the calibrated heliostats' "
+                                               f"pointing sigma: an upper bound (95 % confidence) of its "
+                                               f"{probability:g} quantile over {settings['draws']} draws, / limit",
+                "limit_fraction": "the fraction of the limit hybrid_margin was optimised under",
+                "pointing_sigma_m": "per design point the calibrated heliostats' spot displacement on the receiver "
+                                    "(RMS, m): median and max over them, and how many have one"}
+               if probability is not None else {}),
         },
     }
     write_text_atomic(json_path, json.dumps(result_json, indent=2) + "\n")

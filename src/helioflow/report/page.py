@@ -208,10 +208,14 @@ def _aim_section(files: dict[str, list[str]]) -> str:
                      f"{len(result['measured'])} measured with {esc(result['network'])}. Every aiming is "
                      "traced on the true field (truth_*); model_peak_over_limit is what its own model "
                      "promised.</p>")
+        if "keep_probability" in result:
+            parts.append(f"<p>hybrid_margin: aimed on the hybrid map so that its peak keeps the limit with probability "
+                         f"{result['keep_probability']:g} under the calibrated heliostats' pointing σ "
+                         "(model_peak_bound_over_limit: a 95 %-confidence bound of that quantile).</p>")
         for point, row in result["design_points"].items():
+            columns = [*AIM_COLUMNS, *(["model_peak_bound_over_limit"] if "keep_probability" in result else [])]
             parts.append(f"<h3>{esc(point)}</h3>")
-            parts.append(table(["aiming", *AIM_COLUMNS],
-                               [[s, *(m[c] for c in AIM_COLUMNS)] for s, m in row.items()]))
+            parts.append(table(["aiming", *columns], [[s, *(m.get(c) for c in columns)] for s, m in row.items()]))
     return "\n".join(parts)
 
 
