@@ -15,6 +15,7 @@ from helioflow.field.aim import SpotPatches, optimise
 from helioflow.field.aiming import MARGIN, STRATEGIES, optimise_aim
 from helioflow.field.margin import (
     TRACKING_NAMES,
+    covered,
     displacement_draws,
     jittered_peaks,
     optimise_with_margin,
@@ -70,6 +71,12 @@ def test_the_tracking_block_is_read_from_the_fit_and_drawn_with_its_covariance()
     sample = torch.einsum("dni,dnj->nij", draws, draws) / len(draws)
     assert torch.allclose(sample[0], covariances[0], rtol=0.05, atol=5e-6)
     assert float(draws[:, 1].abs().max()) == 0.0  # a heliostat known exactly is not moved
+    # offsets drawn from the covariance fall in its 95 % ellipse 95 % of the time; ones twice as large do not
+    many = covariances[:1].expand(4000, 2, 2)
+    offsets = displacement_draws(many, 1, seed=5)[0]
+    assert covered(many, offsets) == (pytest.approx(0.95, abs=0.015), 4000)
+    assert covered(many, 2 * offsets)[0] < 0.6
+    assert covered(covariances[1:], offsets[:1]) == (1.0, 0)  # no heliostat with a covariance: nothing to judge
     # J C J^T: a heliostat without a covariance has none on the receiver
     h = true_heliostat(HeliostatSpec.from_config("h", {
         "position_m": [0.0, 50.0, 0.0], "mount": "az_el",
@@ -136,6 +143,7 @@ def test_optimise_aim_adds_an_aiming_that_keeps_the_limit_under_the_calibrated_p
     assert set(row) == {*STRATEGIES, MARGIN} and result["keep_probability"] == 0.9
     sigma = result["pointing_sigma_m"]["noon"]
     assert sigma["heliostats"] == 2 and 0.1 < sigma["median"] < 1.0  # slant ~20 m: 2 x 20 m x 3 mrad, five of them
+    assert 0.0 <= sigma["truth_within_95"] <= 1.0 and sigma["truth_offset_rms_m"] > 0.0
     margin, hybrid = row[MARGIN], row["hybrid"]
     assert margin["model_peak_bound_over_limit"] <= 1.0 and 0.5 <= margin["limit_fraction"] <= 1.0
     if hybrid["model_peak_bound_over_limit"] <= 1.0:  # the hybrid's aiming already keeps it: nothing to give up

@@ -57,6 +57,7 @@ from helioflow.field.compose import (
 )
 from helioflow.field.figure import plot_aim_maps
 from helioflow.field.margin import (
+    covered,
     displacement_draws,
     optimise_with_margin,
     peak_quantile,
@@ -191,11 +192,17 @@ def optimise_aim(
             chosen[MARGIN], promised[MARGIN] = result.offsets, result.peak_w_m2 / limit
             sigma = covariances.diagonal(dim1=-2, dim2=-1).sum(-1).sqrt()  # (N,) RMS displacement (m)
             known = sigma[sigma > 0]
+            wide = extended_receiver(scene.receiver, region)  # where the centre-aimed spots lie
+            offsets = wide.centroid(spots["truth"][i].double()) - wide.centroid(spots["hybrid"][i].double())
+            share, _ = covered(covariances, offsets)
             margin = {"bound": {"hybrid": peak_quantile(patches, chosen["hybrid"], draws, probability) / limit,
                                 MARGIN: bound / limit},
                       "limit_fraction": fraction,
                       "pointing_sigma_m": {"median": float(known.median()) if len(known) else 0.0,
-                                           "max": float(sigma.max()), "heliostats": len(known)}}
+                                           "max": float(sigma.max()), "heliostats": len(known),
+                                           "truth_within_95": share,
+                                           "truth_offset_rms_m": float(offsets[sigma > 0].norm(dim=-1).pow(2).mean()
+                                                                       .sqrt()) if len(known) else 0.0}}
         row: dict[str, Any] = {}
         for s in strategies:
             aims = scene.receiver.center + chosen[s][:, :1] * right + chosen[s][:, 1:] * up
@@ -235,7 +242,9 @@ def optimise_aim(
                                                f"{probability:g} quantile over {settings['draws']} draws, / limit",
                 "limit_fraction": "the fraction of the limit hybrid_margin was optimised under",
                 "pointing_sigma_m": "per design point the calibrated heliostats' spot displacement on the receiver "
-                                    "(RMS, m): median and max over them, and how many have one"}
+                                    "(RMS, m): median and max over them, how many have one, the share whose true "
+                                    "spot's centroid lies in the 95 % ellipse about the model's, and the RMS of "
+                                    "those offsets (m)"}
                if probability is not None else {}),
         },
     }

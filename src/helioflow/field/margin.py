@@ -26,7 +26,7 @@ from dataclasses import replace
 
 import numpy as np
 import torch
-from scipy.stats import binom
+from scipy.stats import binom, chi2
 from torch import Tensor
 
 from helioflow.field.aim import AimResult, SpotPatches, optimise, render
@@ -81,6 +81,18 @@ def pointing_covariances(heliostats: list[Heliostat], covariances: list[Tensor |
             j = receiver_jacobian(h, sun, aims[k], receiver)
             out[k] = j @ c @ j.T
     return out
+
+
+def covered(covariances: Tensor, offsets: Tensor, probability: float = 0.95) -> tuple[float, int]:
+    """(the share of the heliostats with a covariance whose (N, 2) offsets (m; e.g. true spot centroid minus
+    the model's) lie inside their `probability` ellipse of the (N, 2, 2) covariances (m^2), how many have
+    one): a covariance that describes the pointing covers about `probability` of them."""
+    known = covariances.diagonal(dim1=-2, dim2=-1).sum(-1) > 0
+    if not bool(known.any()):
+        return 1.0, 0
+    c, d = covariances[known], offsets[known].to(covariances)
+    distance = (d[:, None, :] @ torch.linalg.pinv(c) @ d[:, :, None]).reshape(-1)  # squared Mahalanobis
+    return float((distance <= chi2.ppf(probability, 2)).double().mean()), int(known.sum())
 
 
 def displacement_draws(covariances: Tensor, draws: int, seed: int) -> Tensor:
