@@ -63,7 +63,8 @@ def fitted_heliostat(model_path: str | os.PathLike, grid_step_m: float = GRID_ST
     out: dict = {"model": str(model_path), "network": info["network"],
                  "frame": "heliostat frame: x right, y up as seen facing the mirror at rest (east, up), m; "
                           "origin the concentrator centre",
-                 "uncertainty": None if summary is None else {k: summary[k] for k in ("misfit", "structure", "method")}}
+                 "uncertainty": None if summary is None else {k: summary[k] for k in ("misfit", "structure", "method",
+                                                                                  "refits")}}
     freedom = getattr(model, "freedom", None)
     out["freedom"] = None if freedom is None else freedom.as_json()
     slope = (fitted.effects.get("slope_error") or {}).get("sigma_mrad")
