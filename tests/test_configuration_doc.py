@@ -13,7 +13,8 @@ REPO = Path(__file__).resolve().parents[1]
 SCHEMA = yaml.safe_load((REPO / "workflow" / "schemas" / "config.schema.yaml").read_text())
 DOC = (REPO / "docs" / "configuration.md").read_text()
 SHARED = {"sun_positions": "sun", "splits": "splits", "trace": "trace", "aim": "aim",
-          "design_points": "design_points", "diagnosis": "diagnosis"}  # blocks documented once, by these names
+          "design_points": "design_points", "diagnosis": "diagnosis",
+          "optimise_aim": "optimise_aim"}  # blocks documented once, by these names
 NETWORKS = ("nearest", "gan", "cgan", "nerf", "raytrace", "drt")
 SET_BY_THE_PIPELINE = {"effects", "heliostat_path"}  # physics-model fields the workflow fills in
 

@@ -317,6 +317,23 @@ def cmd_plant_flux(args) -> None:
                  summary["ideal_against_calibrated"]["flux_accuracy"], summary["mean_spot_shift_m"])
 
 
+def cmd_plant_aim(args) -> None:
+    """`helioflow plant-aim`: a plant's aim points under its receiver's flux limit."""
+    from helioflow.field.plant_aim import optimise_plant_aim
+
+    spec = read_spec(args.spec)
+    if args.plant not in spec:
+        raise HelioflowError(f"--plant {args.plant}: no such plant entry in the spec; entries: "
+                             f"{', '.join(spec) or 'none'}")
+    if not spec[args.plant]["settings"].get("optimise_aim"):
+        raise HelioflowError(f"--plant {args.plant}: its spec has no settings.optimise_aim (config "
+                             "plant.flux.optimise_aim: {limit_kw_m2: ...})")
+    result = optimise_plant_aim(spec[args.plant], args.output, args.figure)
+    for point, row in result["design_points"].items():
+        logging.info("%s %s: calibrated peak / limit %s", args.plant, point,
+                     ", ".join(f"{s} {m['calibrated_peak_over_limit']:.3f}" for s, m in row.items()))
+
+
 def cmd_report(args) -> None:
     """`helioflow report`: the self-contained HTML report of an experiment."""
     from helioflow.report.page import write_report
@@ -474,6 +491,15 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--figure", required=True, help="plant/flux/<plant>.png")
     p.add_argument("--metrics", required=True, help="plant/flux/<plant>.json")
     p.set_defaults(func=cmd_plant_flux)
+
+    p = sub.add_parser("plant-aim", help="a plant's aim points under its receiver's flux limit, chosen on the "
+                                         "design and on the calibrated heliostats")
+    p.add_argument("--spec", required=True, help="the rule's parameters as JSON, or @FILE (what the Snakefile "
+                                                 "passes: specs/plant_flux.json)")
+    p.add_argument("--plant", required=True, help="the plant entry (a key of the spec)")
+    p.add_argument("--output", required=True, help="plant/aim/<plant>.json")
+    p.add_argument("--figure", required=True, help="plant/aim/<plant>.png")
+    p.set_defaults(func=cmd_plant_aim)
 
     p = sub.add_parser("plant-shared", help="what a plant's heliostats share (the sun, the camera), fitted once "
                                             "across them")

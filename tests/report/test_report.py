@@ -256,6 +256,7 @@ def test_report_inputs_of_the_tiny_config_list_the_expected_files():
         "paint_centroids": [], "table": [], "samples": [], "psnr": [], "data_efficiency": [], "recovery": [],
         "heliostats": [], "plan": [], "diagnosis": [], "diagnosis_figures": [], "field": [], "aim": [],
         "leave_one_out": [], "plant": [], "plant_plan": [], "plant_flux": [], "plant_shared": [],
+        "plant_aim": [],
     }
     config = copy.deepcopy(config)
     config.update(networks={"nearest": {}}, diagnosis={}, field={})

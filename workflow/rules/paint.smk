@@ -149,3 +149,26 @@ rule plant_flux:
     shell:
         "helioflow --threads {params.torch_threads:q} plant-flux --spec @{input.spec:q} --plant {wildcards.plant:q}"
         " --flux {output.flux:q} --figure {output.figure:q} --metrics {output.metrics:q} > {log:q} 2>&1"
+
+
+rule plant_aim:
+    """A plant entry's aim points under its receiver's flux limit, chosen on the design and on the
+    calibrated heliostats, each judged on the calibrated plant (helioflow.field.plant_aim)."""
+    input:
+        lambda wc: plant_flux_inputs(config, wc.plant),
+        spec=spec_path(config, "plant_flux"),
+    output:
+        json=f"{RESULTS}/plant/aim/{{plant}}.json",
+        figure=f"{RESULTS}/plant/aim/{{plant}}.png",
+    params:
+        torch_threads=TORCH_THREADS,
+    log:
+        f"{RESULTS}/logs/plant_aim/{{plant}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/plant_aim/{{plant}}.tsv"
+    wildcard_constraints:
+        plant=name_pattern(list(plant_groups(config))),
+    threads: TORCH_THREADS
+    shell:
+        "helioflow --threads {params.torch_threads:q} plant-aim --spec @{input.spec:q} --plant {wildcards.plant:q}"
+        " --output {output.json:q} --figure {output.figure:q} > {log:q} 2>&1"

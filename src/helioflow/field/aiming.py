@@ -67,6 +67,7 @@ from helioflow.field.margin import (
 from helioflow.io import write_text_atomic
 from helioflow.physics.field import flat_receiver
 from helioflow.physics.geometry import sun_vector
+from helioflow.physics.heliostat import Heliostat
 from helioflow.physics.target import Target
 
 log = logging.getLogger(__name__)
@@ -116,25 +117,63 @@ def model_spots(
     return {"ideal": ideal.asked_spots(), "hybrid": hybrid, "truth": truth.asked_spots()}
 
 
-def judge(scene: FieldScene, spec: dict, point: int, aims: Tensor, limit_w_m2: float, device: torch.device
+def judge(scene: FieldScene, effects: dict, heliostats: list[Heliostat], point: int, aims: Tensor,
+          limit_w_m2: float, spec: dict, device: torch.device, slope_error: dict[int, float] | None = None,
           ) -> tuple[dict[str, float], np.ndarray]:
-    """The true field at design point `point` aimed at `aims` ((N, 3) ENU, m): the truth_* metrics
-    of aim.json and the (H, W) true flux map (W/m^2)."""
+    """`heliostats` under `effects` at design point `point`, aimed at `aims` ((N, 3) ENU, m), traced
+    again (field_flux: shading and blocking at the new orientations): ({peak_over_limit, intercepted_w,
+    spillage, area_over_limit}, the (H, W) flux map (W/m^2)); spec: dni_w_m2, cells_per_side;
+    slope_error as trace_field's."""
     one = dataclasses.replace(
         scene, aims=aims, azimuth=scene.azimuth[point:point + 1], elevation=scene.elevation[point:point + 1],
         measured=[],
     )
-    flux, _ = trace_field(one, spec["world_effects"], scene.true, spec["dni_w_m2"], spec["cells_per_side"], device)
+    flux, _ = trace_field(one, effects, heliostats, spec["dni_w_m2"], spec["cells_per_side"], device, slope_error)
     image = flux.flux[0]
     pw, ph = scene.receiver.pixel_size
     on = float(flux.budget["on_receiver"][0].sum())
     spilled = float(flux.budget["spilled"][0].sum())
     return {
-        "truth_peak_over_limit": float(image.max()) / limit_w_m2,
-        "truth_intercepted_w": float(image.sum()) * pw * ph,
-        "truth_spillage": spilled / max(on + spilled, 1e-30),
-        "truth_area_over_limit": float((image > limit_w_m2).double().mean()),
+        "peak_over_limit": float(image.max()) / limit_w_m2,
+        "intercepted_w": float(image.sum()) * pw * ph,
+        "spillage": spilled / max(on + spilled, 1e-30),
+        "area_over_limit": float((image > limit_w_m2).double().mean()),
     }, image.cpu().numpy()
+
+
+def choose_aims(spots: dict[str, Tensor], start: Tensor, limit_w_m2: float, settings: dict, receiver: Target
+                ) -> tuple[dict[str, Tensor], dict[str, float | None]]:
+    """({model: (N, 2) aim offsets (m)}, {model: the peak / limit its own map promises}) optimised
+    (field.aim.optimise) on each model's (N, He, We) centre-aimed spots on the extended receiver, from
+    the (N, 2) `start` offsets; settings: config field.optimise_aim (region, steps)."""
+    chosen: dict[str, Tensor] = {}
+    promised: dict[str, float | None] = {}
+    for m, maps in spots.items():
+        patches = SpotPatches.from_maps(maps, receiver.resolution, receiver.pixel_size)
+        result = optimise(patches, start, limit_w_m2, region=settings["region"], steps=settings["steps"])
+        chosen[m], promised[m] = result.offsets, result.peak_w_m2 / limit_w_m2
+    return chosen, promised
+
+
+def margin_aim(spots: Tensor, start: Tensor, plain: Tensor, limit_w_m2: float, settings: dict, covariances: Tensor,
+               receiver: Target, seed: int) -> tuple[Tensor, float, dict[str, Any]]:
+    """((N, 2) aim offsets (m) that keep the limit with settings["keep_probability"] under the (N, 2, 2)
+    pointing covariances (m^2) on the receiver (field/margin.py), the peak / limit its own map promises,
+    {"bound": (the peak's bound / limit at the `plain` offsets, at the chosen ones), "limit_fraction",
+    "pointing_sigma_m": median and max RMS displacement (m) over the heliostats with one, their count})
+    for one model's (N, He, We) centre-aimed spots."""
+    patches = SpotPatches.from_maps(spots, receiver.resolution, receiver.pixel_size)
+    probability = settings["keep_probability"]
+    draws = displacement_draws(covariances, settings["draws"], seed=seed)
+    result, bound, fraction = optimise_with_margin(patches, start, limit_w_m2, draws, probability,
+                                                   region=settings["region"], steps=settings["steps"])
+    sigma = covariances.diagonal(dim1=-2, dim2=-1).sum(-1).sqrt()  # (N,) RMS displacement (m)
+    known = sigma[sigma > 0]
+    return result.offsets, result.peak_w_m2 / limit_w_m2, {
+        "bound": (peak_quantile(patches, plain, draws, probability) / limit_w_m2, bound / limit_w_m2),
+        "limit_fraction": fraction,
+        "pointing_sigma_m": {"median": float(known.median()) if len(known) else 0.0, "max": float(sigma.max()),
+                             "heliostats": len(known)}}
 
 
 def optimise_aim(
@@ -163,7 +202,7 @@ def optimise_aim(
     spots = model_spots(spec, scene, region, cals, device)
     right, up = scene.receiver.axes()
     start = scene.receiver.to_plane(scene.aims)  # (N, 2) the default aiming
-    pixel = scene.receiver.pixel_size
+    wide = extended_receiver(scene.receiver, region)  # where the centre-aimed spots lie
     probability = settings.get("keep_probability")
     strategies = (*STRATEGIES, MARGIN) if probability is not None else STRATEGIES
     tracking: list[Tensor | None] = [None] * len(scene.names)
@@ -174,50 +213,35 @@ def optimise_aim(
     maps: dict[str, list[np.ndarray]] = {s: [] for s in strategies}
     moves: dict[str, list[np.ndarray]] = {s: [] for s in strategies}
     for i, point in enumerate(scene.points):
-        chosen: dict[str, Tensor] = {"default": start}
-        promised: dict[str, float | None] = {"default": None}
-        for m in MODELS:
-            patches = SpotPatches.from_maps(spots[m][i], scene.receiver.resolution, pixel)
-            result = optimise(patches, start, limit, region=region, steps=settings["steps"])
-            chosen[m], promised[m] = result.offsets, result.peak_w_m2 / limit
+        chosen, promised = choose_aims({m: spots[m][i] for m in MODELS}, start, limit, settings, scene.receiver)
+        chosen["default"], promised["default"] = start, None
         margin: dict[str, Any] = {}
         if probability is not None:  # the hybrid's map under its heliostats' pointing sigma
-            patches = SpotPatches.from_maps(spots["hybrid"][i], scene.receiver.resolution, pixel)
             sun = sun_vector(scene.azimuth[i], scene.elevation[i]).double()
             covariances = pointing_covariances([h.ideal() for h in scene.true], tracking, sun, scene.aims,
                                                scene.receiver)
-            draws = displacement_draws(covariances, settings["draws"], seed=i)
-            result, bound, fraction = optimise_with_margin(patches, start, limit, draws, probability, region=region,
-                                                           steps=settings["steps"])
-            chosen[MARGIN], promised[MARGIN] = result.offsets, result.peak_w_m2 / limit
-            sigma = covariances.diagonal(dim1=-2, dim2=-1).sum(-1).sqrt()  # (N,) RMS displacement (m)
-            known = sigma[sigma > 0]
-            wide = extended_receiver(scene.receiver, region)  # where the centre-aimed spots lie
+            chosen[MARGIN], promised[MARGIN], margin = margin_aim(spots["hybrid"][i], start, chosen["hybrid"], limit,
+                                                                  settings, covariances, scene.receiver, seed=i)
+            known = covariances.diagonal(dim1=-2, dim2=-1).sum(-1) > 0
             offsets = wide.centroid(spots["truth"][i].double()) - wide.centroid(spots["hybrid"][i].double())
             share, _ = covered(covariances, offsets)
-            margin = {"bound": {"hybrid": peak_quantile(patches, chosen["hybrid"], draws, probability) / limit,
-                                MARGIN: bound / limit},
-                      "limit_fraction": fraction,
-                      "pointing_sigma_m": {"median": float(known.median()) if len(known) else 0.0,
-                                           "max": float(sigma.max()), "heliostats": len(known),
-                                           "truth_within_95": share,
-                                           "truth_offset_rms_m": float(offsets[sigma > 0].norm(dim=-1).pow(2).mean()
-                                                                       .sqrt()) if len(known) else 0.0}}
+            margin["pointing_sigma_m"] |= {
+                "truth_within_95": share,
+                "truth_offset_rms_m": float(offsets[known].norm(dim=-1).pow(2).mean().sqrt()) if known.any() else 0.0}
         row: dict[str, Any] = {}
         for s in strategies:
             aims = scene.receiver.center + chosen[s][:, :1] * right + chosen[s][:, 1:] * up
-            metrics, image = judge(scene, spec, i, aims, limit, device)
+            metrics, image = judge(scene, spec["world_effects"], scene.true, i, aims, limit, spec, device)
             maps[s].append(image)
             moves[s].append(chosen[s].cpu().numpy())
             row[s] = {
-                **metrics,
+                **{f"truth_{k}": v for k, v in metrics.items()},
                 "model_peak_over_limit": promised[s],
                 "mean_aim_move_m": float((chosen[s] - start).norm(dim=-1).mean()),
                 "aim_points_m": chosen[s].tolist(),
             }
-            if s in margin.get("bound", {}):
-                row[s]["model_peak_bound_over_limit"] = margin["bound"][s]
         if margin:
+            row["hybrid"]["model_peak_bound_over_limit"], row[MARGIN]["model_peak_bound_over_limit"] = margin["bound"]
             row[MARGIN]["limit_fraction"] = margin["limit_fraction"]
             sigmas[point] = margin["pointing_sigma_m"]
         bound = row["truth"]["truth_intercepted_w"]
@@ -250,7 +274,7 @@ def optimise_aim(
     }
     write_text_atomic(json_path, json.dumps(result_json, indent=2) + "\n")
     plot_aim_maps(
-        figure_path, {s: np.stack(v) for s, v in maps.items()}, {s: np.stack(v) for s, v in moves.items()},
+        figure_path, maps, moves,
         scene.points, limit, (scene.receiver.width, scene.receiver.height),
         f"{len(scene.names)} heliostats, {len(scene.measured)} measured with {spec['network']}: true flux "
         f"under each aiming, limit {settings['limit_kw_m2']:g} kW/m²",

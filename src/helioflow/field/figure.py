@@ -90,8 +90,8 @@ def _plan(ax, positions: np.ndarray, measured: list[int], labels: tuple[str, str
 
 def plot_aim_maps(
     path: str | os.PathLike,
-    maps: dict[str, np.ndarray],
-    aims: dict[str, np.ndarray],
+    maps: dict[str, list[np.ndarray]],
+    aims: dict[str, list[np.ndarray]],
     points: list[str],
     limit_w_m2: float,
     receiver_size_m: tuple[float, float],
@@ -102,8 +102,8 @@ def plot_aim_maps(
     on one flux scale, the limit drawn as a contour, and the aim points on the receiver.
 
     Args:
-        maps: {strategy: (S, H, W) true flux (W/m^2)}, drawn in this order.
-        aims: {strategy: (S, N, 2) aim points (right, up; m from the receiver centre)}.
+        maps: {strategy: S maps (H, W) of the true flux (W/m^2)}, drawn in this order.
+        aims: {strategy: S arrays (N, 2) of aim points (right, up; m from the receiver centre)}.
         points: S design point names.
         limit_w_m2: the flux limit (W/m^2).
         receiver_size_m: (width, height) of the receiver (m).
@@ -116,7 +116,7 @@ def plot_aim_maps(
     # maps | colour bar | gap | aim points
     grid = fig.add_gridspec(len(points), len(names) + 3, width_ratios=[1] * len(names) + [0.06, 0.25, 1],
                             wspace=0.3, hspace=0.45)
-    vmax = max(float(m.max()) for m in maps.values()) / 1e3 or 1.0
+    vmax = max(float(np.max(m)) for m in maps.values()) / 1e3 or 1.0
     for row, point in enumerate(points):
         for col, name in enumerate(names):
             ax, image = fig.add_subplot(grid[row, col]), maps[name][row]

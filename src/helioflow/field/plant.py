@@ -38,11 +38,13 @@ import math
 import os
 import time
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from helioflow.data.hdf5 import write_arrays
 from helioflow.data.paint import PROPERTIES_FILE, Tower, read_heliostat_properties
@@ -51,6 +53,7 @@ from helioflow.device import resolve_device
 from helioflow.errors import DataError
 from helioflow.field.compose import FieldScene, aim_points, as_fitted, trace_field, without_fit
 from helioflow.field.figure import plot_field_maps
+from helioflow.field.margin import tracking_covariance
 from helioflow.field.metrics import map_metrics, mean_metrics
 from helioflow.io import write_text_atomic
 from helioflow.models.registry import load_fitted_model
@@ -86,10 +89,11 @@ def plant_folders(paint_dir: str | os.PathLike) -> list[Path]:
 
 
 def calibrated_heliostat(name: str, model_path: str | os.PathLike, design: Heliostat
-                         ) -> tuple[Heliostat, float | None]:
+                         ) -> tuple[Heliostat, float | None, Tensor | None]:
     """(the heliostat as its physics model's fit has it (float64), its fitted slope error (rad) or None
-    where the model fits none); DataError naming the file when it holds no physics model or one
-    fitted on a heliostat elsewhere than `design`."""
+    where the model fits none, its (5, 5) tracking covariance (mrad^2; field.margin.tracking_covariance)
+    or None); DataError naming the file when it holds no physics model or one fitted on a heliostat
+    elsewhere than `design`."""
     model, heliostat, _ = load_fitted_model(model_path, "the plant's flux map")
     offset = float((heliostat.position.double().cpu() - design.position.double().cpu()).norm())
     if offset > POSITION_TOLERANCE_M:
@@ -97,7 +101,65 @@ def calibrated_heliostat(name: str, model_path: str | os.PathLike, design: Helio
                         f"{PROPERTIES_FILE}; refit it on this plant's data")
     fit = as_fitted(model)
     assert fit is not None  # load_fitted_model refuses a model without a fit
-    return fit
+    return *fit, tracking_covariance(model.fitted.uncertainty)
+
+
+@dataclass
+class Plant:
+    """A plant entry's field as rule plant_flux traces it (module docstring).
+
+    Attributes:
+        scene: every heliostat of the PAINT directory with its design geometry (scene.true), the
+            receiver, the configured aim points, the design points; scene.measured: the calibrated ones.
+        fitted: the N heliostats, each calibrated one as its fit has it, the rest as designed.
+        slopes: {index: its fitted slope error (rad)} of the calibrated heliostats that fit one.
+        tracking: per heliostat its (5, 5) fitted tracking covariance (mrad^2), or None.
+        effects, left_out: the maps' effect list and what it leaves out, why (map_effects).
+    """
+
+    scene: FieldScene
+    fitted: list[Heliostat]
+    slopes: dict[int, float]
+    tracking: list[Tensor | None]
+    effects: dict
+    left_out: dict[str, str]
+
+
+def load_plant(spec: dict, device: torch.device) -> Plant:
+    """The plant of a plant_flux spec (compose_plant's); DataError naming the file for a calibrated
+    heliostat without a folder, a heliostat of another facet layout, or a fit made elsewhere."""
+    settings = spec["settings"]
+    tower = Tower(Path(spec["paint_dir"]) / "tower-measurements.json")
+    folders = plant_folders(spec["paint_dir"])
+    names = [f.name for f in folders]
+    missing = [c["heliostat"] for c in spec["calibrated"] if c["heliostat"] not in names]
+    if missing:
+        raise DataError(f"{spec['paint_dir']}: calibrated heliostat {missing[0]} has no folder with a "
+                        f"{PROPERTIES_FILE} there; heliostats: {', '.join(names) or 'none'}")
+    design = [read_heliostat_properties(f / PROPERTIES_FILE, tower)[0] for f in folders]
+    usual = Counter(h.n_facets for h in design).most_common(1)[0][0]
+    odd = [(f, h) for f, h in zip(folders, design) if h.n_facets != usual]  # the field tracer batches one layout
+    if odd:
+        raise DataError(f"{odd[0][0] / PROPERTIES_FILE}: {odd[0][1].n_facets} facets, but the plant's other "
+                        f"heliostats have {usual}; its flux map needs one facet layout for all of them")
+    fitted, slopes = list(design), {}
+    tracking: list[Tensor | None] = [None] * len(names)
+    for c in spec["calibrated"]:
+        k = names.index(c["heliostat"])
+        fitted[k], own, tracking[k] = calibrated_heliostat(c["heliostat"], c["model_path"], design[k])
+        if own is not None:
+            slopes[k] = own
+    plane = tower.receiver(settings["receiver"])
+    receiver = flat_receiver(torch.tensor(plane.center, device=device), torch.tensor(plane.normal, device=device),
+                             plane.width, plane.height, settings["resolution"])
+    points = list(settings["sun"])
+    az, el = (torch.tensor([math.radians(settings["sun"][p][k]) for p in points], dtype=torch.float64, device=device)
+              for k in ("azimuth_deg", "elevation_deg"))
+    calibrated = sorted(names.index(c["heliostat"]) for c in spec["calibrated"])
+    scene = FieldScene(names, design, receiver, aim_points(receiver, settings["aim"], len(names)), points, az, el,
+                       calibrated)
+    effects, left_out = map_effects({**spec["effects"], **settings["effects"]})
+    return Plant(scene, fitted, slopes, tracking, effects, left_out)
 
 
 def _spot_place(spots: np.ndarray, receiver, pixel_area: float) -> tuple[np.ndarray, np.ndarray]:
@@ -118,51 +180,25 @@ def compose_plant(spec: dict, flux_path: str | os.PathLike, figure_path: str | o
     """
     start = time.perf_counter()
     settings, device = spec["settings"], resolve_device(spec["device"])
-    tower = Tower(Path(spec["paint_dir"]) / "tower-measurements.json")
-    folders = plant_folders(spec["paint_dir"])
-    names = [f.name for f in folders]
-    missing = [c["heliostat"] for c in spec["calibrated"] if c["heliostat"] not in names]
-    if missing:
-        raise DataError(f"{spec['paint_dir']}: calibrated heliostat {missing[0]} has no folder with a "
-                        f"{PROPERTIES_FILE} there; heliostats: {', '.join(names) or 'none'}")
-    design = [read_heliostat_properties(f / PROPERTIES_FILE, tower)[0] for f in folders]
-    usual = Counter(h.n_facets for h in design).most_common(1)[0][0]
-    odd = [(f, h) for f, h in zip(folders, design) if h.n_facets != usual]  # the field tracer batches one layout
-    if odd:
-        raise DataError(f"{odd[0][0] / PROPERTIES_FILE}: {odd[0][1].n_facets} facets, but the plant's other "
-                        f"heliostats have {usual}; its flux map needs one facet layout for all of them")
-    fitted, slopes = list(design), {}
-    for c in spec["calibrated"]:
-        k = names.index(c["heliostat"])
-        fitted[k], own = calibrated_heliostat(c["heliostat"], c["model_path"], design[k])
-        if own is not None:
-            slopes[k] = own
-    plane = tower.receiver(settings["receiver"])
-    receiver = flat_receiver(torch.tensor(plane.center, device=device), torch.tensor(plane.normal, device=device),
-                             plane.width, plane.height, settings["resolution"])
-    points = list(settings["sun"])
-    az, el = (torch.tensor([math.radians(settings["sun"][p][k]) for p in points], dtype=torch.float64, device=device)
-              for k in ("azimuth_deg", "elevation_deg"))
-    calibrated = sorted(names.index(c["heliostat"]) for c in spec["calibrated"])
-    scene = FieldScene(names, design, receiver, aim_points(receiver, settings["aim"], len(names)), points, az, el,
-                  calibrated)
-    effects, left_out = map_effects({**spec["effects"], **settings["effects"]})
-    dni, cells = spec["dni_w_m2"], settings["cells_per_side"]
-    traced = {"ideal": trace_field(scene, effects, design, dni, cells, device)[0],
-              "calibrated": trace_field(scene, effects, fitted, dni, cells, device, slopes)[0]}
-    metrics = _plant_metrics(scene, settings, traced, left_out, effects)
+    plant = load_plant(spec, device)
+    scene, effects, dni, cells = plant.scene, plant.effects, spec["dni_w_m2"], settings["cells_per_side"]
+    traced = {"ideal": trace_field(scene, effects, scene.true, dni, cells, device)[0],
+              "calibrated": trace_field(scene, effects, plant.fitted, dni, cells, device, plant.slopes)[0]}
+    metrics = _plant_metrics(scene, settings, traced, plant.left_out, effects)
     metrics["seconds"] = round(time.perf_counter() - start, 2)
     write_plant_flux(flux_path, scene, spec, traced, effects)
     write_text_atomic(metrics_path, json.dumps(metrics, indent=2) + "\n")
-    sun_deg = np.degrees(torch.stack((az, el), -1).cpu().numpy())
-    plot_field_maps(figure_path, {m: traced[m].flux.cpu().numpy() for m in MAPS}, "calibrated", points, sun_deg,
-                    [{"ideal": metrics["design_points"][p]["ideal"]} for p in points],
-                    np.array([h.position.tolist() for h in design]), calibrated, (receiver.width, receiver.height),
-                    f"plant {spec['plant']}: {len(names)} heliostats, {len(calibrated)} calibrated: ideal (design "
+    sun_deg = np.degrees(torch.stack((scene.azimuth, scene.elevation), -1).cpu().numpy())
+    receiver, n, m = scene.receiver, len(scene.names), len(scene.measured)
+    plot_field_maps(figure_path, {m: traced[m].flux.cpu().numpy() for m in MAPS}, "calibrated", scene.points, sun_deg,
+                    [{"ideal": metrics["design_points"][p]["ideal"]} for p in scene.points],
+                    np.array([h.position.tolist() for h in scene.true]), scene.measured,
+                    (receiver.width, receiver.height),
+                    f"plant {spec['plant']}: {n} heliostats, {m} calibrated: ideal (design "
                     "geometry) and calibrated (fitted heliostats) on its receiver",
                     labels=("ideal (design)", "calibrated (fit)"))
-    log.info("plant %s: %d heliostats, %d calibrated, %d design points in %.1f s", spec["plant"], len(names),
-             len(calibrated), len(points), metrics["seconds"])
+    log.info("plant %s: %d heliostats, %d calibrated, %d design points in %.1f s", spec["plant"], n, m,
+             len(scene.points), metrics["seconds"])
     return metrics
 
 

@@ -59,7 +59,7 @@ from helioflow.report.html import (
 SECTIONS = ("datasets", "dataset_figures", "paint_centroids", "table", "samples", "psnr", "data_efficiency",
             "recovery", "heliostats", "plan", "diagnosis", "diagnosis_figures", "field", "aim", "leave_one_out",
             "plant",
-            "plant_plan", "plant_shared", "plant_flux")
+            "plant_plan", "plant_shared", "plant_flux", "plant_aim")
 PLANT_WORST = 20  # heliostats listed in the report's plant section
 ABSENT = '<p class="absent">Not part of this experiment.</p>'
 
@@ -282,6 +282,9 @@ def _plant_section(files: dict[str, list[str]]) -> str:
     parts += [_plant_flux_part(path) for path in files["plant_flux"] if path.endswith(".json")]
     parts += [figure(path, f"Plant {Path(path).stem}: ideal and calibrated flux maps on its receiver, and their "
                      "difference") for path in files["plant_flux"] if path.endswith(".png")]
+    parts += [_plant_aim_part(path) for path in files["plant_aim"] if path.endswith(".json")]
+    parts += [figure(path, f"Plant {Path(path).stem}: the calibrated plant's flux under each aiming, and the aim "
+                     "points") for path in files["plant_aim"] if path.endswith(".png")]
     return "\n".join(parts)
 
 
@@ -313,6 +316,27 @@ def _plant_flux_part(path: str) -> str:
         table(["heliostat", "design point", "spot moved by calibration (m)"],
               [[name, point, fixed(shift, 3)] for shift, name, point in shifts]) if shifts else "",
         download(path, "application/json")])
+
+
+PLANT_AIM_COLUMNS = ("calibrated_peak_over_limit", "calibrated_intercepted_w", "calibrated_spillage",
+                     "calibrated_area_over_limit", "model_peak_over_limit", "mean_aim_move_m")
+
+
+def _plant_aim_part(path: str) -> str:
+    """plant/aim/<plant>.json (field.plant_aim): per design point each aiming judged on the calibrated plant."""
+    data = read_json(path)
+    if not isinstance(data, dict) or "design_points" not in data or "limit_kw_m2" not in data:
+        raise DataError(f"{path}: not a plant aim (written by `plant-aim`): needs limit_kw_m2 and design_points")
+    bound = ["model_peak_bound_over_limit"] if "keep_probability" in data else []
+    parts = [f"<h3>Aim points on the receiver of {esc(Path(path).stem)}: limit {data['limit_kw_m2']:g} kW/m², "
+             f"{len(data['heliostats'])} heliostats, {len(data['calibrated'])} calibrated</h3>",
+             "<p>Each aiming is traced on the calibrated plant (calibrated_*): a real plant has no truth to judge on; "
+             "model_peak_over_limit is what its own model promised.</p>"]
+    for point, row in data["design_points"].items():
+        columns = [*PLANT_AIM_COLUMNS, *bound]
+        parts += [f"<h4>{esc(point)}</h4>",
+                  table(["aiming", *columns], [[s, *(m.get(c) for c in columns)] for s, m in row.items()])]
+    return "\n".join([*parts, download(path, "application/json")])
 
 
 def _shared_part(path: str) -> str:
@@ -353,7 +377,7 @@ LAYOUT = (
     ("field", "Field flux maps", ("field",), _field_section),
     ("aim", "Aim points under the flux limit", ("aim",), _aim_section),
     ("leave_one_out", "Leave-one-out on real images", ("leave_one_out",), _leave_one_out_section),
-    ("plant", "The plant", ("plant_shared", "plant", "plant_plan", "plant_flux"), _plant_section),
+    ("plant", "The plant", ("plant_shared", "plant", "plant_plan", "plant_flux", "plant_aim"), _plant_section),
 )
 
 

@@ -167,6 +167,7 @@ def report_inputs(config: dict) -> dict[str, list[str]]:
         "plant": plant_table_path(config),
         "plant_plan": [str(Path(p).with_name("plan.png")) for p in plant_table_path(config)],
         "plant_flux": [*plant_flux_paths(config, "png"), *plant_flux_paths(config, "json")],
+        "plant_aim": plant_aim_paths(config),
         "plant_shared": plant_shared_path(config),
     }
 
@@ -222,6 +223,15 @@ def plant_flux_paths(config: dict, kind: str = "png") -> list[str]:
     if plant_flux_settings(config) is None:
         return []
     return [f"{results_dir(config)}/plant/flux/{plant}.{kind}" for plant in paint_plant_groups(config)]
+
+
+def plant_aim_paths(config: dict) -> list[str]:
+    """plant/aim/<plant entry>.png and .json, the outputs of rule plant_aim, when config
+    plant.flux.optimise_aim asks for them."""
+    if not (plant_flux_settings(config) or {}).get("optimise_aim"):
+        return []
+    return [f"{results_dir(config)}/plant/aim/{plant}.{kind}" for plant in paint_plant_groups(config)
+            for kind in ("png", "json")]
 
 
 def leave_one_out_inputs(config: dict, group: str) -> dict[str, list[str]]:
