@@ -10,8 +10,14 @@ origin, helioflow's from the pivot (data.paint): a small difference of the two c
 Per design point: each map's flux accuracy against the truth (1 - sum|P - T| / sum T) and per
 heliostat the distance of its spot's centroid from the true spot's (m), ideal and calibrated.
 
+With --aim, instead: the aim points of rule plant_aim (plant/aim/<plant>.json) judged on the truth:
+per design point and aiming, the generator's heliostats aimed at them, the true map's peak over the
+limit, the power on the receiver (W), the spillage (the share of the reflected power that misses
+it, from a second trace on a plane three times the receiver's size) and the share of the receiver's
+area over the limit.
+
 Run: python scripts/experiments/plant_flux_truth.py RESULTS_DIR PAINT_DIR [--plant plant] [--seed 11]
-     [--rays 2000000] [--json out.json]
+     [--rays 2000000] [--aim] [--json out.json]
 """
 
 from __future__ import annotations
@@ -42,11 +48,17 @@ class _Plane:
         self.aim = center
 
 
-def true_spots(arrays: dict, attrs: dict, worlds: dict, rays: int, dni_w_m2: float, seed: int) -> np.ndarray:
+def true_spots(arrays: dict, attrs: dict, worlds: dict, rays: int, dni_w_m2: float, seed: int,
+               aims: np.ndarray | None = None, scale: float = 1.0) -> np.ndarray:
     """(S, N, H, W) true flux (W/m^2) of every heliostat on the receiver grid of a plant flux file
-    (its arrays and attributes, field.plant.write_plant_flux), by the generator."""
+    (its arrays and attributes, field.plant.write_plant_flux), by the generator.
+
+    Args:
+        aims: (S, N, 2) aim points (right, up; m from the receiver centre), or None: the centre.
+        scale: the traced plane's size over the receiver's, about the same centre (>1 to count spillage).
+    """
     centre, normal = np.asarray(attrs["receiver_center_m"]), np.asarray(attrs["receiver_normal"])
-    width, height = attrs["receiver_size_m"]
+    width, height = (scale * s for s in attrs["receiver_size_m"])
     rows, cols = arrays["ideal"].shape[1:]
     right, up = (a.numpy() for a in plane_axes(torch.as_tensor(normal)))
     rng = np.random.default_rng(seed)
@@ -59,10 +71,43 @@ def true_spots(arrays: dict, attrs: dict, worlds: dict, rays: int, dni_w_m2: flo
         scene.target, scene.right, scene.up = _Plane(centre, normal, width, height), right, up
         area = 4 * float((np.linalg.norm(scene.half_e, axis=-1) * np.linalg.norm(scene.half_n, axis=-1)).sum())
         for i, (az, el) in enumerate(zip(arrays["sun/azimuth_deg"], arrays["sun/elevation_deg"])):
+            if aims is not None:
+                scene.target.aim = centre + aims[i, j, 0] * right + aims[i, j, 1] * up
             hits = trace_image(scene, world, float(az), float(el), rays, rng)  # (256, 256) sum of cos(incidence)
             flux_png = hits * dni_w_m2 * area / rays / (width / PNG_SIDE * height / PNG_SIDE)  # W/m^2
             out[i, j] = resample_area(flux_png, (rows, cols))  # the mean over each map pixel
     return out
+
+
+def judge_aims(results: Path, paint_dir: Path, plant: str, seed: int, rays: int, dni_w_m2: float) -> dict:
+    """Rule plant_aim's aim points (plant/aim/<plant>.json) applied to the generator's heliostats:
+    {design point: {aiming: truth_peak_over_limit, truth_intercepted_w, truth_spillage,
+    truth_area_over_limit, calibrated_peak_over_limit (what helioflow's calibrated plant said)}}."""
+    truth = json.loads((paint_dir / "truth.json").read_text())
+    aim = json.loads((results / "plant" / "aim" / f"{plant}.json").read_text())
+    arrays, attrs = read_arrays(results / "plant" / "flux" / f"{plant}.h5", SCHEMA)
+    points = [str(p) for p in arrays["design_points"]]
+    order = [aim["heliostats"].index(str(n)) for n in arrays["heliostats/names"]]  # the flux file's order
+    limit = aim["limit_kw_m2"] * 1e3
+    rows, cols = arrays["ideal"].shape[1:]
+    width, height = attrs["receiver_size_m"]
+    pixel_m2 = width / cols * height / rows
+    out: dict = {p: {} for p in points}
+    for strategy in aim["design_points"][points[0]]:
+        aims = np.array([np.asarray(aim["design_points"][p][strategy]["aim_points_m"])[order] for p in points])
+        maps = true_spots(arrays, attrs, plant_worlds(len(truth), seed), rays, dni_w_m2, seed, aims).sum(1)
+        wide = true_spots(arrays, attrs, plant_worlds(len(truth), seed), rays // 4, dni_w_m2, seed + 1, aims,
+                          scale=3.0).sum(1)
+        for i, point in enumerate(points):
+            on_receiver, reflected = maps[i].sum() * pixel_m2, wide[i].sum() * 9 * pixel_m2
+            out[point][strategy] = {
+                "truth_peak_over_limit": round(float(maps[i].max() / limit), 4),
+                "truth_intercepted_w": round(float(on_receiver), 1),
+                "truth_spillage": round(float(max(0.0, 1 - on_receiver / reflected)), 4),
+                "truth_area_over_limit": round(float((maps[i] > limit).mean()), 4),
+                "calibrated_peak_over_limit": round(aim["design_points"][point][strategy]
+                                                    ["calibrated_peak_over_limit"], 4)}
+    return {"limit_kw_m2": aim["limit_kw_m2"], "design_points": out}
 
 
 def score(results: Path, paint_dir: Path, plant: str, seed: int, rays: int, dni_w_m2: float) -> dict:
@@ -103,8 +148,22 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=PLANT_DEMO["seed"], help="the seed plant_worlds drew the plant with")
     ap.add_argument("--rays", type=int, default=2_000_000, help="rays per heliostat and design point")
     ap.add_argument("--dni", type=float, default=1000.0, help="the config's dni_w_m2")
+    ap.add_argument("--aim", action="store_true", help="judge rule plant_aim's aim points on the truth instead")
     ap.add_argument("--json")
     args = ap.parse_args()
+    if args.aim:
+        judged = judge_aims(Path(args.results), Path(args.paint_dir), args.plant, args.seed, args.rays, args.dni)
+        print(f"| design point | aiming | truth peak / limit ({judged['limit_kw_m2']:g} kW/m²) | calibrated plant's "
+              "peak / limit | truth on receiver (kW) | truth spillage | truth area over limit |")
+        print("|---|---|---|---|---|---|---|")
+        for point, row in judged["design_points"].items():
+            for strategy, r in row.items():
+                print(f"| {point} | {strategy} | {r['truth_peak_over_limit']:.3f} | "
+                      f"{r['calibrated_peak_over_limit']:.3f} | {r['truth_intercepted_w'] / 1e3:.2f} | "
+                      f"{r['truth_spillage']:.4f} | {r['truth_area_over_limit']:.4f} |")
+        if args.json:
+            Path(args.json).write_text(json.dumps(judged, indent=1))
+        return
     out = score(Path(args.results), Path(args.paint_dir), args.plant, args.seed, args.rays, args.dni)
     print("| design point | flux accuracy: ideal | calibrated | power error: ideal | calibrated |")
     print("|---|---|---|---|---|")

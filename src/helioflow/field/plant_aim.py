@@ -140,8 +140,8 @@ def optimise_plant_aim(spec: dict, json_path: str | os.PathLike, figure_path: st
     plot_aim_maps(
         figure_path, maps, moves,
         scene.points, limit, (scene.receiver.width, scene.receiver.height),
-        f"plant {spec['plant']}: {len(scene.names)} heliostats, {len(scene.measured)} calibrated: the calibrated "
-        f"plant's flux under each aiming, limit {settings['limit_kw_m2']:g} kW/m²",
+        f"plant entry '{spec['plant']}': {len(scene.names)} heliostats, {len(scene.measured)} calibrated: the "
+        f"calibrated plant's flux under each aiming, limit {settings['limit_kw_m2']:g} kW/m²",
         ("default", "calibrated"),
     )
     log.info("plant_aim %s: %d heliostats, %d design points in %.1f s", spec["plant"], len(scene.names),
