@@ -35,6 +35,7 @@ from support.paint_world import PLANT_DEMO, PNG_SIDE, Scene, plant_worlds, trace
 
 from helioflow.data.hdf5 import read_arrays  # noqa: E402
 from helioflow.data.paint import resample_area  # noqa: E402
+from helioflow.field.aim import limit_map, limit_text  # noqa: E402
 from helioflow.field.plant import MAPS, SCHEMA  # noqa: E402
 from helioflow.physics.geometry import plane_axes  # noqa: E402
 from helioflow.scoring.metrics import centroid_px, flux_accuracy  # noqa: E402
@@ -88,8 +89,9 @@ def judge_aims(results: Path, paint_dir: Path, plant: str, seed: int, rays: int,
     arrays, attrs = read_arrays(results / "plant" / "flux" / f"{plant}.h5", SCHEMA)
     points = [str(p) for p in arrays["design_points"]]
     order = [aim["heliostats"].index(str(n)) for n in arrays["heliostats/names"]]  # the flux file's order
-    limit = aim["limit_kw_m2"] * 1e3
     rows, cols = arrays["ideal"].shape[1:]
+    limit = limit_map(aim["limit_kw_m2"], (rows, cols))
+    limit = limit.numpy() if isinstance(limit, torch.Tensor) else limit  # W/m^2, one value or (H, W)
     width, height = attrs["receiver_size_m"]
     pixel_m2 = width / cols * height / rows
     out: dict = {p: {} for p in points}
@@ -101,7 +103,7 @@ def judge_aims(results: Path, paint_dir: Path, plant: str, seed: int, rays: int,
         for i, point in enumerate(points):
             on_receiver, reflected = maps[i].sum() * pixel_m2, wide[i].sum() * 9 * pixel_m2
             out[point][strategy] = {
-                "truth_peak_over_limit": round(float(maps[i].max() / limit), 4),
+                "truth_peak_over_limit": round(float((maps[i] / limit).max()), 4),
                 "truth_intercepted_w": round(float(on_receiver), 1),
                 "truth_spillage": round(float(max(0.0, 1 - on_receiver / reflected)), 4),
                 "truth_area_over_limit": round(float((maps[i] > limit).mean()), 4),
@@ -153,8 +155,8 @@ def main() -> None:
     args = ap.parse_args()
     if args.aim:
         judged = judge_aims(Path(args.results), Path(args.paint_dir), args.plant, args.seed, args.rays, args.dni)
-        print(f"| design point | aiming | truth peak / limit ({judged['limit_kw_m2']:g} kW/m²) | calibrated plant's "
-              "peak / limit | truth on receiver (kW) | truth spillage | truth area over limit |")
+        print(f"| design point | aiming | truth peak / limit ({limit_text(judged['limit_kw_m2'])}) | calibrated "
+              "plant's peak / limit | truth on receiver (kW) | truth spillage | truth area over limit |")
         print("|---|---|---|---|---|---|---|")
         for point, row in judged["design_points"].items():
             for strategy, r in row.items():

@@ -310,7 +310,7 @@ def _aim_worker(n: int, threads: int, steps: int, queue) -> None:
     result = optimise(spots, centre, limit, region=1.0, steps=steps)
     seconds = time.perf_counter() - start
     patches = {g.shifted.shape[-1] - 1: len(g.members) for g in spots.groups}
-    queue.put((setup, seconds, _rss_mb(), base, before / limit, result.peak_w_m2 / limit, result.feasible,
+    queue.put((setup, seconds, _rss_mb(), base, before / limit, result.peak_over_limit, result.feasible,
                result.on_receiver_w / float(spots.power_w().sum()), side, patches))
 
 

@@ -278,9 +278,21 @@ def _check_references(config: dict, source: str) -> None:
                               "made from")
     if config.get("field"):
         _check_field(config, f"{source}: field")
+        _check_limit_map((config["field"].get("optimise_aim") or {}).get("limit_kw_m2"),
+                         f"{source}: field.optimise_aim.limit_kw_m2")
     flux = (config.get("plant") or {}).get("flux")
     if isinstance(flux, dict):
         check_effects(flux.get("effects"), f"{source}: plant.flux.effects", allow_fit=False)
+        _check_limit_map((flux.get("optimise_aim") or {}).get("limit_kw_m2"),
+                         f"{source}: plant.flux.optimise_aim.limit_kw_m2")
+
+
+def _check_limit_map(limit, where: str) -> None:
+    """A limit map's rows are of equal length (the schema checks the values)."""
+    if isinstance(limit, list) and len({len(row) for row in limit}) > 1:
+        lengths = ", ".join(str(len(row)) for row in limit)
+        raise ConfigError(f"{where}: rows of {lengths} values; a limit map needs rows of equal length (the top "
+                          "row first, columns left to right as seen from the field)")
 
 
 def _check_traced(ds: dict, where: str) -> None:

@@ -11,7 +11,7 @@ from support.field import PIXEL, build, gaussians, tiny_field
 from helioflow.config import validate_config
 from helioflow.data.surfaces import HeliostatSpec, true_heliostat
 from helioflow.errors import ConfigError
-from helioflow.field.aim import SpotPatches, optimise, render
+from helioflow.field.aim import SpotPatches, limit_map, optimise, render
 from helioflow.field.aiming import STRATEGIES, extended_receiver, optimise_aim
 from helioflow.field.metrics import spot_metrics
 from helioflow.physics.effects import resolve
@@ -79,8 +79,8 @@ def test_the_optimiser_keeps_the_limit_and_the_power():
     start = torch.zeros(4, 2, dtype=torch.float64)
     assert float(render(spots, start).max()) > 3.9e5
     result = optimise(spots, start, 1.6e5, region=0.8, steps=200)
-    assert result.feasible and result.peak_w_m2 <= 1.6e5
-    assert float(render(spots, result.offsets).max()) == pytest.approx(result.peak_w_m2)
+    assert result.feasible and result.peak_over_limit <= 1.0
+    assert float(render(spots, result.offsets).max()) == pytest.approx(result.peak_over_limit * 1.6e5)
     assert result.on_receiver_w > 0.99 * float(spots.power_w().sum())
     assert float(result.offsets.abs().max()) <= 0.8 * 1.6 + 1e-12  # within the region: 0.8 of the 1.6 m half side
 
@@ -97,7 +97,34 @@ def test_a_limit_below_one_spot_is_reported_unreachable_with_the_spots_apart():
     spots = SpotPatches.from_maps(maps, (64, 64), PIXEL)
     result = optimise(spots, torch.zeros(2, 2, dtype=torch.float64), 0.5e5, region=1.0, steps=150)
     assert not result.feasible
-    assert result.peak_w_m2 < 1.05e5  # the two spots no longer overlap: one spot's peak is all that is left
+    assert result.peak_over_limit < 1.05e5 / 0.5e5  # the two spots no longer overlap: one spot's peak is all that
+    # is left
+
+
+def test_a_limit_map_takes_each_cell_over_its_share_of_the_receiver():
+    limit = limit_map([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]], (6, 4))
+    assert isinstance(limit, torch.Tensor) and limit.shape == (6, 4)
+    assert limit[:, 0].tolist() == [1e3, 1e3, 3e3, 3e3, 5e3, 5e3] and limit[0].tolist() == [1e3, 1e3, 2e3, 2e3]
+    assert limit_map([[4.0]], (5, 7)).unique().tolist() == [4e3] and limit_map(4.0, (5, 7)) == 4e3
+    thirds = limit_map([[1.0], [2.0], [3.0]], (64, 64))[:, 0]
+    assert torch.unique(thirds, return_counts=True)[1].tolist() == [22, 21, 21]
+
+
+def test_under_a_limit_map_the_optimiser_keeps_every_pixels_limit_and_puts_the_power_where_it_may():
+    """A receiver whose upper half takes 1.0x and lower half 2.5x one spot's peak (panels of unlike
+    tubes): the four centre-aimed spots are spread so that each half keeps its own limit, with more of
+    the flux below, and no power lost."""
+    maps = gaussians([(0.0, 0.0)] * 4, 6.0, 1e5)
+    spots = SpotPatches.from_maps(maps, (64, 64), PIXEL)
+    start = torch.zeros(4, 2, dtype=torch.float64)
+    limit = limit_map([[100.0], [250.0]], (64, 64))
+    result = optimise(spots, start, limit, region=0.8, steps=200)
+    flux = render(spots, result.offsets)
+    assert result.feasible and float((flux / limit).max()) == pytest.approx(result.peak_over_limit)
+    assert bool((flux <= limit * (1 + 1e-12)).all())
+    assert float(flux[32:].sum()) > 1.5 * float(flux[:32].sum())  # the lower, stronger half carries more
+    assert float(flux[:32].max()) > 0.8e5  # and the upper one is used up to its limit, not left empty
+    assert result.on_receiver_w > 0.99 * float(spots.power_w().sum())
 
 
 @pytest.fixture(scope="module")
@@ -149,3 +176,11 @@ def test_a_limit_is_required_and_must_be_positive():
     config["field"]["optimise_aim"] = {"limit_kw_m2": -1.0}
     with pytest.raises(ConfigError, match="limit_kw_m2"):
         validate_config(config)
+    config["field"]["optimise_aim"] = {"limit_kw_m2": [[4.0, 5.0], [6.0]]}
+    with pytest.raises(ConfigError, match=r"field.optimise_aim.limit_kw_m2: rows of 2, 1 values; a limit map needs"):
+        validate_config(config)
+    config["field"]["optimise_aim"] = {"limit_kw_m2": [[4.0, 5.0], [6.0, 0.0]]}
+    with pytest.raises(ConfigError, match="limit_kw_m2"):
+        validate_config(config)
+    config["field"]["optimise_aim"] = {"limit_kw_m2": [[4.0, 5.0], [6.0, 7.0]]}
+    assert validate_config(config)["field"]["optimise_aim"]["limit_kw_m2"] == [[4.0, 5.0], [6.0, 7.0]]

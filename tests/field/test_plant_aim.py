@@ -75,3 +75,16 @@ def test_a_fit_that_found_nothing_aims_as_the_design_and_a_pointing_sigma_buys_a
     assert row[MARGIN]["model_peak_bound_over_limit"] <= 1.0 < row["calibrated"]["model_peak_bound_over_limit"]
     assert row[MARGIN]["limit_fraction"] < 1.0
     assert row[MARGIN]["calibrated_peak_over_limit"] < row["calibrated"]["calibrated_peak_over_limit"]
+
+
+def test_under_a_limit_map_each_part_of_the_receiver_keeps_its_own_limit(tmp_path):
+    """A receiver whose upper half takes 4 kW/m^2 and lower half 12 (its hot panels below): the
+    calibrated aiming keeps each pixel under its own limit on the calibrated plant (to the spot shift's
+    error), puts more of the power below, and the JSON and the figure carry the map."""
+    row, out = _aim(tmp_path, _aa39(tmp_path / "drt.pt", (0.0, 4.0, 0.0, 0.0, 0.0)), limit_kw_m2=[[4.0], [12.0]])
+    assert out["limit_kw_m2"] == [[4.0], [12.0]]
+    assert row["calibrated"]["model_peak_over_limit"] <= 1.0
+    assert row["calibrated"]["calibrated_peak_over_limit"] < 1.02
+    assert row["default"]["calibrated_peak_over_limit"] > 2.5 * 6.0 / 12.0  # the centre aim breaks the lower limit
+    up = np.asarray(row["calibrated"]["aim_points_m"])[:, 1]
+    assert (up < 0).sum() > (up > 0).sum()  # most aim points on the stronger lower half

@@ -11,6 +11,10 @@ per map, no ray), exact for whole-pixel moves of an unchanged spot. Rule `optimi
 aim it chooses by tracing the true field at those aim points, so the shift's own error is measured,
 not assumed (aim.json's `model_peak_over_limit` beside `truth_peak_over_limit`).
 
+The limit is one value or a map (`limit_map`: a grid of values stretched over the receiver, as where
+a receiver's panels or tubes take different fluxes); "the peak over the limit" is then the largest
+ratio of flux to the local limit, and every test below compares flux with the limit pixel by pixel.
+
 The choice (`optimise`): maximise the power on the receiver with the peak flux at most the limit,
 aim points within `region` of the receiver's half extent, by projected Adam on the (N, 2) offsets
 from a start aiming, with a quadratic penalty on the flux above the limit whose weight grows
@@ -32,6 +36,36 @@ from torch import Tensor
 
 SUPPORT = 0.999  # a patch holds this share of its spot's power on the extended grid
 POWER_TOLERANCE = 1e-4  # relative power gain for which the optimiser leaves its best aiming so far
+
+Limit = float | Tensor  # W/m^2: one value, or a (rows, columns) map on the receiver grid
+
+
+def limit_map(limit_kw_m2: float | list[list[float]], shape: tuple[int, int], dtype: torch.dtype = torch.float64,
+              device: torch.device | str = "cpu") -> Limit:
+    """The receiver's flux limit (W/m^2) from config `optimise_aim.limit_kw_m2`: a number as it is, or
+    rows of kW/m^2 (the top row first, columns left to right as seen from the field, rows of equal
+    length), each cell covering an equal share of the receiver, as a (rows, columns) map on the
+    receiver's `shape` grid: each pixel takes the cell its centre lies in."""
+    if not isinstance(limit_kw_m2, list):
+        return float(limit_kw_m2) * 1e3
+    cells = torch.as_tensor(limit_kw_m2, dtype=dtype, device=device) * 1e3  # (R, C)
+    rows, cols = shape
+    r = (torch.arange(rows, device=device) * cells.shape[0]) // rows
+    c = (torch.arange(cols, device=device) * cells.shape[1]) // cols
+    return cells[r[:, None], c[None, :]]
+
+
+def limit_text(limit_kw_m2: float | list[list[float]]) -> str:
+    """Config `optimise_aim.limit_kw_m2` in words: "5 kW/m²", or "a 2 x 1 map of 4-8 kW/m²"."""
+    if not isinstance(limit_kw_m2, list):
+        return f"{limit_kw_m2:g} kW/m²"
+    values = [v for row in limit_kw_m2 for v in row]
+    return f"a {len(limit_kw_m2)} x {len(limit_kw_m2[0])} map of {min(values):g}-{max(values):g} kW/m²"
+
+
+def peak_over_limit(flux: Tensor, limit: Limit) -> float:
+    """The largest ratio of the (..., rows, columns) flux (W/m^2) to the limit (W/m^2)."""
+    return float((flux / limit).max())
 
 
 @dataclass
@@ -174,13 +208,13 @@ class AimResult:
 
     Attributes:
         offsets: (N, 2) aim offsets (u right, v up) from the receiver centre (m).
-        peak_w_m2: the peak flux of the model's map at those offsets (W/m^2).
+        peak_over_limit: the largest ratio of the model's flux at those offsets to the limit.
         on_receiver_w: the model's power on the receiver (W).
         feasible: whether the model's map keeps the limit.
     """
 
     offsets: Tensor
-    peak_w_m2: float
+    peak_over_limit: float
     on_receiver_w: float
     feasible: bool
 
@@ -188,7 +222,7 @@ class AimResult:
 def optimise(
     spots: SpotPatches,
     start: Tensor,
-    limit_w_m2: float,
+    limit_w_m2: Limit,
     *,
     region: float,
     steps: int,
@@ -201,7 +235,7 @@ def optimise(
     Args:
         spots: the heliostats' spots (SpotPatches).
         start: (N, 2) start offsets (m), e.g. the plant's default aiming.
-        limit_w_m2: the flux limit (W/m^2).
+        limit_w_m2: the flux limit (W/m^2): one value or a (rows, columns) map (`limit_map`).
         region: aim points within this share of the receiver's half width and half height.
         steps: Adam steps.
         learning_rate_m: Adam's step (m); default 2 % of the receiver's smaller side.
@@ -232,8 +266,8 @@ def optimise(
         with torch.no_grad():  # judged at whole-pixel moves, where the shifted spot is exact
             snapped = torch.round(offsets / pixel) * pixel
             judged = render(spots, snapped)
-        peak, power = float(judged.max()), float(judged.sum()) * pixel_area
-        feasible = peak <= limit_w_m2
+        peak, power = peak_over_limit(judged, limit_w_m2), float(judged.sum()) * pixel_area
+        feasible = peak <= 1.0
         if best is None or _better(feasible, peak, power, best[0], best[2], best[3]):
             best = (feasible, snapped, peak, power)
         if step == steps:
@@ -260,7 +294,7 @@ def _better(feasible: bool, peak: float, power: float, best_feasible: bool, best
             ) -> bool:
     """Whether an iterate beats the best so far: keeping the limit first, then more power on the
     receiver (by more than POWER_TOLERANCE: an aiming that keeps the limit is not moved for round-off),
-    or, while none keeps it, a lower peak."""
+    or, while none keeps it, a lower peak over the limit."""
     if feasible != best_feasible:
         return feasible
     if feasible:

@@ -43,7 +43,7 @@ from torch import Tensor
 
 from helioflow.device import resolve_device
 from helioflow.errors import ConfigError
-from helioflow.field.aim import SpotPatches, optimise
+from helioflow.field.aim import Limit, SpotPatches, limit_map, limit_text, optimise, peak_over_limit
 from helioflow.field.compose import (
     Calibration,
     FieldScene,
@@ -118,12 +118,12 @@ def model_spots(
 
 
 def judge(scene: FieldScene, effects: dict, heliostats: list[Heliostat], point: int, aims: Tensor,
-          limit_w_m2: float, spec: dict, device: torch.device, slope_error: dict[int, float] | None = None,
+          limit_w_m2: Limit, spec: dict, device: torch.device, slope_error: dict[int, float] | None = None,
           ) -> tuple[dict[str, float], np.ndarray]:
     """`heliostats` under `effects` at design point `point`, aimed at `aims` ((N, 3) ENU, m), traced
     again (field_flux: shading and blocking at the new orientations): ({peak_over_limit, intercepted_w,
-    spillage, area_over_limit}, the (H, W) flux map (W/m^2)); spec: dni_w_m2, cells_per_side;
-    slope_error as trace_field's."""
+    spillage, area_over_limit}, the (H, W) flux map (W/m^2)); the limit (W/m^2) one value or an (H, W)
+    map on `device` (field.aim.limit_map); spec: dni_w_m2, cells_per_side; slope_error as trace_field's."""
     one = dataclasses.replace(
         scene, aims=aims, azimuth=scene.azimuth[point:point + 1], elevation=scene.elevation[point:point + 1],
         measured=[],
@@ -134,14 +134,14 @@ def judge(scene: FieldScene, effects: dict, heliostats: list[Heliostat], point: 
     on = float(flux.budget["on_receiver"][0].sum())
     spilled = float(flux.budget["spilled"][0].sum())
     return {
-        "peak_over_limit": float(image.max()) / limit_w_m2,
+        "peak_over_limit": peak_over_limit(image, limit_w_m2),
         "intercepted_w": float(image.sum()) * pw * ph,
         "spillage": spilled / max(on + spilled, 1e-30),
         "area_over_limit": float((image > limit_w_m2).double().mean()),
     }, image.cpu().numpy()
 
 
-def choose_aims(spots: dict[str, Tensor], start: Tensor, limit_w_m2: float, settings: dict, receiver: Target
+def choose_aims(spots: dict[str, Tensor], start: Tensor, limit_w_m2: Limit, settings: dict, receiver: Target
                 ) -> tuple[dict[str, Tensor], dict[str, float | None]]:
     """({model: (N, 2) aim offsets (m)}, {model: the peak / limit its own map promises}) optimised
     (field.aim.optimise) on each model's (N, He, We) centre-aimed spots on the extended receiver, from
@@ -151,11 +151,11 @@ def choose_aims(spots: dict[str, Tensor], start: Tensor, limit_w_m2: float, sett
     for m, maps in spots.items():
         patches = SpotPatches.from_maps(maps, receiver.resolution, receiver.pixel_size)
         result = optimise(patches, start, limit_w_m2, region=settings["region"], steps=settings["steps"])
-        chosen[m], promised[m] = result.offsets, result.peak_w_m2 / limit_w_m2
+        chosen[m], promised[m] = result.offsets, result.peak_over_limit
     return chosen, promised
 
 
-def margin_aim(spots: Tensor, start: Tensor, plain: Tensor, limit_w_m2: float, settings: dict, covariances: Tensor,
+def margin_aim(spots: Tensor, start: Tensor, plain: Tensor, limit_w_m2: Limit, settings: dict, covariances: Tensor,
                receiver: Target, seed: int) -> tuple[Tensor, float, dict[str, Any]]:
     """((N, 2) aim offsets (m) that keep the limit with settings["keep_probability"] under the (N, 2, 2)
     pointing covariances (m^2) on the receiver (field/margin.py), the peak / limit its own map promises,
@@ -169,8 +169,8 @@ def margin_aim(spots: Tensor, start: Tensor, plain: Tensor, limit_w_m2: float, s
                                                    region=settings["region"], steps=settings["steps"])
     sigma = covariances.diagonal(dim1=-2, dim2=-1).sum(-1).sqrt()  # (N,) RMS displacement (m)
     known = sigma[sigma > 0]
-    return result.offsets, result.peak_w_m2 / limit_w_m2, {
-        "bound": (peak_quantile(patches, plain, draws, probability) / limit_w_m2, bound / limit_w_m2),
+    return result.offsets, result.peak_over_limit, {
+        "bound": (peak_quantile(patches, plain, draws, probability, limit_w_m2), bound),
         "limit_fraction": fraction,
         "pointing_sigma_m": {"median": float(known.median()) if len(known) else 0.0, "max": float(sigma.max()),
                              "heliostats": len(known)}}
@@ -197,7 +197,7 @@ def optimise_aim(
         )
     device = resolve_device(spec["device"])
     scene = build_scene(spec, device)
-    limit, region = settings["limit_kw_m2"] * 1e3, settings["region"]
+    limit, region = limit_map(settings["limit_kw_m2"], scene.receiver.resolution, device=device), settings["region"]
     cals = load_calibrations(scene, model_paths, dataset_paths, device)
     spots = model_spots(spec, scene, region, cals, device)
     right, up = scene.receiver.axes()
@@ -277,7 +277,7 @@ def optimise_aim(
         figure_path, maps, moves,
         scene.points, limit, (scene.receiver.width, scene.receiver.height),
         f"{len(scene.names)} heliostats, {len(scene.measured)} measured with {spec['network']}: true flux "
-        f"under each aiming, limit {settings['limit_kw_m2']:g} kW/m²",
+        f"under each aiming, limit {limit_text(settings['limit_kw_m2'])}",
         ("default", "hybrid"),
     )
     log.info("optimise_aim: %d heliostats, %d design points in %.1f s", len(scene.names), len(scene.points),

@@ -8,6 +8,7 @@ from __future__ import annotations
 import os
 
 import numpy as np
+import torch
 
 from helioflow.plotting import plt, save_figure
 
@@ -93,7 +94,7 @@ def plot_aim_maps(
     maps: dict[str, list[np.ndarray]],
     aims: dict[str, list[np.ndarray]],
     points: list[str],
-    limit_w_m2: float,
+    limit_w_m2: float | torch.Tensor,
     receiver_size_m: tuple[float, float],
     title: str,
     arrows: tuple[str, str],
@@ -105,11 +106,12 @@ def plot_aim_maps(
         maps: {strategy: S maps (H, W) of the true flux (W/m^2)}, drawn in this order.
         aims: {strategy: S arrays (N, 2) of aim points (right, up; m from the receiver centre)}.
         points: S design point names.
-        limit_w_m2: the flux limit (W/m^2).
+        limit_w_m2: the flux limit (W/m^2): one value or an (H, W) map (field.aim.limit_map).
         receiver_size_m: (width, height) of the receiver (m).
         arrows: (from, to): the two aimings whose aim points are joined by arrows.
     """
     names = list(maps)
+    limit = limit_w_m2.cpu().numpy() if isinstance(limit_w_m2, torch.Tensor) else limit_w_m2
     w, h = receiver_size_m
     extent = (-w / 2, w / 2, -h / 2, h / 2)
     fig = plt.figure(figsize=(2.5 * (len(names) + 1) + 1.0, 2.6 * len(points) + 0.8))
@@ -121,10 +123,10 @@ def plot_aim_maps(
         for col, name in enumerate(names):
             ax, image = fig.add_subplot(grid[row, col]), maps[name][row]
             shown = ax.imshow(image / 1e3, extent=extent, cmap="inferno", vmin=0.0, vmax=vmax)
-            if image.max() > limit_w_m2:
-                ax.contour(image / 1e3, levels=[limit_w_m2 / 1e3], colors="cyan", linewidths=0.8,
-                           extent=extent, origin="upper")
-            ax.set_title(f"{name}: peak {image.max() / limit_w_m2:.2f} × limit", fontsize=8)
+            ratio = image / limit
+            if ratio.max() > 1:
+                ax.contour(ratio, levels=[1.0], colors="cyan", linewidths=0.8, extent=extent, origin="upper")
+            ax.set_title(f"{name}: peak {ratio.max():.2f} × limit", fontsize=8)
             ax.tick_params(labelsize=6)
             if col == 0:
                 ax.set_ylabel(f"{point}\nup (m)", fontsize=8)

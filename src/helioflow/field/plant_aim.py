@@ -44,6 +44,7 @@ import torch
 from torch import Tensor
 
 from helioflow.device import resolve_device
+from helioflow.field.aim import limit_map, limit_text
 from helioflow.field.aiming import choose_aims, extended_receiver, judge, margin_aim
 from helioflow.field.compose import trace_field
 from helioflow.field.figure import plot_aim_maps
@@ -83,7 +84,8 @@ def optimise_plant_aim(spec: dict, json_path: str | os.PathLike, figure_path: st
     settings, device = spec["settings"]["optimise_aim"], resolve_device(spec["device"])
     plant = load_plant(spec, device)
     scene = plant.scene
-    limit, probability = settings["limit_kw_m2"] * 1e3, settings.get("keep_probability")
+    limit = limit_map(settings["limit_kw_m2"], scene.receiver.resolution, device=device)
+    probability = settings.get("keep_probability")
     spots = plant_spots(plant, spec, settings["region"], device)
     judged = {"dni_w_m2": spec["dni_w_m2"], "cells_per_side": spec["settings"]["cells_per_side"]}
     right, up = scene.receiver.axes()
@@ -141,7 +143,7 @@ def optimise_plant_aim(spec: dict, json_path: str | os.PathLike, figure_path: st
         figure_path, maps, moves,
         scene.points, limit, (scene.receiver.width, scene.receiver.height),
         f"plant entry '{spec['plant']}': {len(scene.names)} heliostats, {len(scene.measured)} calibrated: the "
-        f"calibrated plant's flux under each aiming, limit {settings['limit_kw_m2']:g} kW/m²",
+        f"calibrated plant's flux under each aiming, limit {limit_text(settings['limit_kw_m2'])}",
         ("default", "calibrated"),
     )
     log.info("plant_aim %s: %d heliostats, %d design points in %.1f s", spec["plant"], len(scene.names),

@@ -41,6 +41,7 @@ import numpy as np
 
 from helioflow.data.hdf5 import SPLITS, read_dataset
 from helioflow.errors import DataError
+from helioflow.field.aim import limit_text
 from helioflow.io import write_text_atomic
 from helioflow.report.diagnosis import diagnosis_section, ledger_section
 from helioflow.report.html import (
@@ -204,7 +205,7 @@ def _aim_section(files: dict[str, list[str]]) -> str:
             parts.append(figure(path, "true flux under each aiming, and the aim points"))
             continue
         result = read_json(path)
-        parts.append(f"<p>Flux limit {result['limit_kw_m2']:g} kW/m²; {result['heliostats']} heliostats, "
+        parts.append(f"<p>Flux limit {limit_text(result['limit_kw_m2'])}; {result['heliostats']} heliostats, "
                      f"{len(result['measured'])} measured with {esc(result['network'])}. Every aiming is "
                      "traced on the true field (truth_*); model_peak_over_limit is what its own model "
                      "promised.</p>")
@@ -328,7 +329,7 @@ def _plant_aim_part(path: str) -> str:
     if not isinstance(data, dict) or "design_points" not in data or "limit_kw_m2" not in data:
         raise DataError(f"{path}: not a plant aim (written by `plant-aim`): needs limit_kw_m2 and design_points")
     bound = ["model_peak_bound_over_limit"] if "keep_probability" in data else []
-    parts = [f"<h3>Aim points on the receiver of {esc(Path(path).stem)}: limit {data['limit_kw_m2']:g} kW/m², "
+    parts = [f"<h3>Aim points on the receiver of {esc(Path(path).stem)}: limit {limit_text(data['limit_kw_m2'])}, "
              f"{len(data['heliostats'])} heliostats, {len(data['calibrated'])} calibrated</h3>",
              "<p>Each aiming is traced on the calibrated plant (calibrated_*): a real plant has no truth to judge on; "
              "model_peak_over_limit is what its own model promised.</p>"]
