@@ -17,7 +17,7 @@ it, from a second trace on a plane three times the receiver's size) and the shar
 area over the limit.
 
 Run: python scripts/experiments/plant_flux_truth.py RESULTS_DIR PAINT_DIR [--plant plant] [--seed 11]
-     [--rays 2000000] [--aim] [--json out.json]
+     [--rays 2000000] [--aim [AIM_JSON]] [--json out.json]
 """
 
 from __future__ import annotations
@@ -80,12 +80,13 @@ def true_spots(arrays: dict, attrs: dict, worlds: dict, rays: int, dni_w_m2: flo
     return out
 
 
-def judge_aims(results: Path, paint_dir: Path, plant: str, seed: int, rays: int, dni_w_m2: float) -> dict:
-    """Rule plant_aim's aim points (plant/aim/<plant>.json) applied to the generator's heliostats:
+def judge_aims(results: Path, paint_dir: Path, plant: str, seed: int, rays: int, dni_w_m2: float,
+               aim_path: Path | None = None) -> dict:
+    """Rule plant_aim's aim points (plant/aim/<plant>.json, or `aim_path`) applied to the generator's heliostats:
     {design point: {aiming: truth_peak_over_limit, truth_intercepted_w, truth_spillage,
     truth_area_over_limit, calibrated_peak_over_limit (what helioflow's calibrated plant said)}}."""
     truth = json.loads((paint_dir / "truth.json").read_text())
-    aim = json.loads((results / "plant" / "aim" / f"{plant}.json").read_text())
+    aim = json.loads((aim_path or results / "plant" / "aim" / f"{plant}.json").read_text())
     arrays, attrs = read_arrays(results / "plant" / "flux" / f"{plant}.h5", SCHEMA)
     points = [str(p) for p in arrays["design_points"]]
     order = [aim["heliostats"].index(str(n)) for n in arrays["heliostats/names"]]  # the flux file's order
@@ -150,11 +151,13 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=PLANT_DEMO["seed"], help="the seed plant_worlds drew the plant with")
     ap.add_argument("--rays", type=int, default=2_000_000, help="rays per heliostat and design point")
     ap.add_argument("--dni", type=float, default=1000.0, help="the config's dni_w_m2")
-    ap.add_argument("--aim", action="store_true", help="judge rule plant_aim's aim points on the truth instead")
+    ap.add_argument("--aim", nargs="?", const="", help="judge rule plant_aim's aim points on the truth instead: "
+                                                       "RESULTS_DIR/plant/aim/<plant>.json, or this aim JSON")
     ap.add_argument("--json")
     args = ap.parse_args()
-    if args.aim:
-        judged = judge_aims(Path(args.results), Path(args.paint_dir), args.plant, args.seed, args.rays, args.dni)
+    if args.aim is not None:
+        judged = judge_aims(Path(args.results), Path(args.paint_dir), args.plant, args.seed, args.rays, args.dni,
+                            Path(args.aim) if args.aim else None)
         print(f"| design point | aiming | truth peak / limit ({limit_text(judged['limit_kw_m2'])}) | calibrated "
               "plant's peak / limit | truth on receiver (kW) | truth spillage | truth area over limit |")
         print("|---|---|---|---|---|---|---|")
