@@ -14,7 +14,8 @@ With --aim, instead: the aim points of rule plant_aim (plant/aim/<plant>.json) j
 per design point and aiming, the generator's heliostats aimed at them, the true map's peak over the
 limit, the power on the receiver (W), the spillage (the share of the reflected power that misses
 it, from a second trace on a plane three times the receiver's size) and the share of the receiver's
-area over the limit.
+area over the limit; with a target distribution in the aim JSON, also each aiming's target accuracy
+on the truth (field.aim.target_accuracy).
 
 Run: python scripts/experiments/plant_flux_truth.py RESULTS_DIR PAINT_DIR [--plant plant] [--seed 11]
      [--rays 2000000] [--aim [AIM_JSON]] [--json out.json]
@@ -35,7 +36,7 @@ from support.paint_world import PLANT_DEMO, PNG_SIDE, Scene, plant_worlds, trace
 
 from helioflow.data.hdf5 import read_arrays  # noqa: E402
 from helioflow.data.paint import resample_area  # noqa: E402
-from helioflow.field.aim import limit_map, limit_text  # noqa: E402
+from helioflow.field.aim import limit_map, limit_text, target_accuracy, target_shares  # noqa: E402
 from helioflow.field.plant import MAPS, SCHEMA  # noqa: E402
 from helioflow.physics.geometry import plane_axes  # noqa: E402
 from helioflow.scoring.metrics import centroid_px, flux_accuracy  # noqa: E402
@@ -95,6 +96,7 @@ def judge_aims(results: Path, paint_dir: Path, plant: str, seed: int, rays: int,
     limit = limit.numpy() if isinstance(limit, torch.Tensor) else limit  # W/m^2, one value or (H, W)
     width, height = attrs["receiver_size_m"]
     pixel_m2 = width / cols * height / rows
+    shares = None if aim.get("target") is None else target_shares(aim["target"], (rows, cols))
     out: dict = {p: {} for p in points}
     for strategy in aim["design_points"][points[0]]:
         aims = np.array([np.asarray(aim["design_points"][p][strategy]["aim_points_m"])[order] for p in points])
@@ -110,7 +112,11 @@ def judge_aims(results: Path, paint_dir: Path, plant: str, seed: int, rays: int,
                 "truth_area_over_limit": round(float((maps[i] > limit).mean()), 4),
                 "calibrated_peak_over_limit": round(aim["design_points"][point][strategy]
                                                     ["calibrated_peak_over_limit"], 4)}
-    return {"limit_kw_m2": aim["limit_kw_m2"], "design_points": out}
+            if shares is not None:
+                out[point][strategy]["truth_target_accuracy"] = round(
+                    target_accuracy(torch.as_tensor(maps[i]), shares, reflected, pixel_m2), 4)
+    return {"limit_kw_m2": aim["limit_kw_m2"], **({"target": aim["target"]} if shares is not None else {}),
+            "design_points": out}
 
 
 def score(results: Path, paint_dir: Path, plant: str, seed: int, rays: int, dni_w_m2: float) -> dict:
@@ -159,13 +165,15 @@ def main() -> None:
         judged = judge_aims(Path(args.results), Path(args.paint_dir), args.plant, args.seed, args.rays, args.dni,
                             Path(args.aim) if args.aim else None)
         print(f"| design point | aiming | truth peak / limit ({limit_text(judged['limit_kw_m2'])}) | calibrated "
-              "plant's peak / limit | truth on receiver (kW) | truth spillage | truth area over limit |")
-        print("|---|---|---|---|---|---|---|")
+              "plant's peak / limit | truth on receiver (kW) | truth spillage | truth area over limit |"
+              + (" truth target accuracy |" if "target" in judged else ""))
+        print("|---" * (7 + ("target" in judged)) + "|")
         for point, row in judged["design_points"].items():
             for strategy, r in row.items():
                 print(f"| {point} | {strategy} | {r['truth_peak_over_limit']:.3f} | "
                       f"{r['calibrated_peak_over_limit']:.3f} | {r['truth_intercepted_w'] / 1e3:.2f} | "
-                      f"{r['truth_spillage']:.4f} | {r['truth_area_over_limit']:.4f} |")
+                      f"{r['truth_spillage']:.4f} | {r['truth_area_over_limit']:.4f} |"
+                      + (f" {r['truth_target_accuracy']:.3f} |" if "truth_target_accuracy" in r else ""))
         if args.json:
             Path(args.json).write_text(json.dumps(judged, indent=1))
         return

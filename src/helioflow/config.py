@@ -278,21 +278,26 @@ def _check_references(config: dict, source: str) -> None:
                               "made from")
     if config.get("field"):
         _check_field(config, f"{source}: field")
-        _check_limit_map((config["field"].get("optimise_aim") or {}).get("limit_kw_m2"),
-                         f"{source}: field.optimise_aim.limit_kw_m2")
+        _check_aim_maps(config["field"].get("optimise_aim"), f"{source}: field.optimise_aim")
     flux = (config.get("plant") or {}).get("flux")
     if isinstance(flux, dict):
         check_effects(flux.get("effects"), f"{source}: plant.flux.effects", allow_fit=False)
-        _check_limit_map((flux.get("optimise_aim") or {}).get("limit_kw_m2"),
-                         f"{source}: plant.flux.optimise_aim.limit_kw_m2")
+        _check_aim_maps(flux.get("optimise_aim"), f"{source}: plant.flux.optimise_aim")
 
 
-def _check_limit_map(limit, where: str) -> None:
-    """A limit map's rows are of equal length (the schema checks the values)."""
-    if isinstance(limit, list) and len({len(row) for row in limit}) > 1:
-        lengths = ", ".join(str(len(row)) for row in limit)
-        raise ConfigError(f"{where}: rows of {lengths} values; a limit map needs rows of equal length (the top "
-                          "row first, columns left to right as seen from the field)")
+def _check_aim_maps(aim: dict | None, where: str) -> None:
+    """A limit map's and a target's rows are of equal length, a target not all zero (the schema checks
+    the values)."""
+    for key in ("limit_kw_m2", "target"):
+        cells = (aim or {}).get(key)
+        if not isinstance(cells, list):
+            continue
+        if len({len(row) for row in cells}) > 1:
+            lengths = ", ".join(str(len(row)) for row in cells)
+            raise ConfigError(f"{where}.{key}: rows of {lengths} values; a map needs rows of equal length (the top "
+                              "row first, columns left to right as seen from the field)")
+        if not any(v > 0 for row in cells for v in row):
+            raise ConfigError(f"{where}.{key}: every value is 0; a target needs flux somewhere")
 
 
 def _check_traced(ds: dict, where: str) -> None:

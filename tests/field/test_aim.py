@@ -11,7 +11,7 @@ from support.field import PIXEL, build, gaussians, tiny_field
 from helioflow.config import validate_config
 from helioflow.data.surfaces import HeliostatSpec, true_heliostat
 from helioflow.errors import ConfigError
-from helioflow.field.aim import SpotPatches, limit_map, optimise, render
+from helioflow.field.aim import SpotPatches, limit_map, optimise, render, target_accuracy, target_shares
 from helioflow.field.aiming import STRATEGIES, extended_receiver, optimise_aim
 from helioflow.field.metrics import spot_metrics
 from helioflow.physics.effects import resolve
@@ -127,6 +127,26 @@ def test_under_a_limit_map_the_optimiser_keeps_every_pixels_limit_and_puts_the_p
     assert result.on_receiver_w > 0.99 * float(spots.power_w().sum())
 
 
+def test_a_target_distribution_draws_the_spots_to_where_it_wants_the_flux():
+    """Four wide spots on the centre, a target that wants the flux on the receiver's outer quarters,
+    left and right, alike: the optimiser parts them into two pairs, half the flux to each side and
+    little in the middle, and the target accuracy rises from -0.9 (nearly all of it where none is wanted) to
+    0.5 (the round spots cannot fill the quarters' corners, and their tails spill off the edge)."""
+    maps = gaussians([(0.0, 0.0)] * 4, 8.0, 1e5)
+    spots = SpotPatches.from_maps(maps, (64, 64), PIXEL)
+    start = torch.zeros(4, 2, dtype=torch.float64)
+    shares = target_shares([[1.0, 0.0, 0.0, 1.0]], (64, 64))
+    total, pixel_area = float(spots.power_w().sum()), PIXEL[0] * PIXEL[1]
+    assert target_accuracy(render(spots, start), shares, total, pixel_area) < -0.85
+    result = optimise(spots, start, 1e7, region=1.0, steps=300, target=shares)
+    flux = render(spots, result.offsets)
+    assert result.feasible and result.target_accuracy == pytest.approx(target_accuracy(flux, shares, total, pixel_area))
+    assert result.target_accuracy > 0.45
+    left, right = float(flux[:, :16].sum()), float(flux[:, 48:].sum())
+    assert left == pytest.approx(right, rel=0.1) and left + right > 0.8 * float(flux.sum())
+    assert sorted((result.offsets[:, 0] > 0).tolist()) == [False, False, True, True]  # two a side
+
+
 @pytest.fixture(scope="module")
 def aimed(tmp_path_factory):
     root = tmp_path_factory.mktemp("aim")
@@ -177,7 +197,7 @@ def test_a_limit_is_required_and_must_be_positive():
     with pytest.raises(ConfigError, match="limit_kw_m2"):
         validate_config(config)
     config["field"]["optimise_aim"] = {"limit_kw_m2": [[4.0, 5.0], [6.0]]}
-    with pytest.raises(ConfigError, match=r"field.optimise_aim.limit_kw_m2: rows of 2, 1 values; a limit map needs"):
+    with pytest.raises(ConfigError, match=r"field.optimise_aim.limit_kw_m2: rows of 2, 1 values; a map needs"):
         validate_config(config)
     config["field"]["optimise_aim"] = {"limit_kw_m2": [[4.0, 5.0], [6.0, 0.0]]}
     with pytest.raises(ConfigError, match="limit_kw_m2"):

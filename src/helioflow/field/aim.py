@@ -20,7 +20,10 @@ aim points within `region` of the receiver's half extent, by projected Adam on t
 from a start aiming, with a quadratic penalty on the flux above the limit whose weight grows
 geometrically over the steps (a penalty method: early steps spread the spots, late ones enforce the
 limit); the result is the best iterate that keeps the limit on the model's map (the lowest peak when
-none does), judged with the offsets rounded to whole pixels: a bilinear shift by a fraction of a pixel
+none does). With a target distribution (`target_shares`: the share of the reflected power each pixel
+should get) the power term gives way to the squared difference from that target carrying all the
+reflected power, so that spillage counts as a miss, and "best" means the highest `target_accuracy`;
+each iterate is judged with the offsets rounded to whole pixels: a bilinear shift by a fraction of a pixel
 averages neighbouring pixels and so lowers the peak it promises, a whole-pixel one does not (the aim
 points are then placed to a pixel, 4 cm on the default receiver, under the 10 cm by which a tracking
 error of 1 mrad moves a spot at 100 m). Its cost is `steps` renders and their gradients: O(steps N P^2), no ray.
@@ -35,24 +38,46 @@ import torch
 from torch import Tensor
 
 SUPPORT = 0.999  # a patch holds this share of its spot's power on the extended grid
-POWER_TOLERANCE = 1e-4  # relative power gain for which the optimiser leaves its best aiming so far
+POWER_TOLERANCE = 1e-4  # relative gain in power (or target accuracy) for which the optimiser leaves its best aiming
 
 Limit = float | Tensor  # W/m^2: one value, or a (rows, columns) map on the receiver grid
+
+
+def _stretched(cells: list[list[float]], shape: tuple[int, int], dtype: torch.dtype,
+               device: torch.device | str) -> Tensor:
+    """(rows, columns) the grid of `cells` (the top row first, columns left to right as seen from the
+    field, rows of equal length), each cell covering an equal share of the receiver, on the receiver's
+    `shape` grid: each pixel takes the cell its centre lies in."""
+    grid = torch.as_tensor(cells, dtype=dtype, device=device)  # (R, C)
+    rows, cols = shape
+    r = (torch.arange(rows, device=device) * grid.shape[0]) // rows
+    c = (torch.arange(cols, device=device) * grid.shape[1]) // cols
+    return grid[r[:, None], c[None, :]]
 
 
 def limit_map(limit_kw_m2: float | list[list[float]], shape: tuple[int, int], dtype: torch.dtype = torch.float64,
               device: torch.device | str = "cpu") -> Limit:
     """The receiver's flux limit (W/m^2) from config `optimise_aim.limit_kw_m2`: a number as it is, or
-    rows of kW/m^2 (the top row first, columns left to right as seen from the field, rows of equal
-    length), each cell covering an equal share of the receiver, as a (rows, columns) map on the
-    receiver's `shape` grid: each pixel takes the cell its centre lies in."""
+    rows of kW/m^2 as a (rows, columns) map on the receiver's `shape` grid (`_stretched`)."""
     if not isinstance(limit_kw_m2, list):
         return float(limit_kw_m2) * 1e3
-    cells = torch.as_tensor(limit_kw_m2, dtype=dtype, device=device) * 1e3  # (R, C)
-    rows, cols = shape
-    r = (torch.arange(rows, device=device) * cells.shape[0]) // rows
-    c = (torch.arange(cols, device=device) * cells.shape[1]) // cols
-    return cells[r[:, None], c[None, :]]
+    return _stretched(limit_kw_m2, shape, dtype, device) * 1e3
+
+
+def target_shares(target: list[list[float]], shape: tuple[int, int], dtype: torch.dtype = torch.float64,
+                  device: torch.device | str = "cpu") -> Tensor:
+    """(rows, columns) the share of the reflected power each receiver pixel should get (sums to 1), from
+    config `optimise_aim.target`: rows of relative flux (>= 0, laid out as a limit map, `_stretched`)."""
+    weights = _stretched(target, shape, dtype, device)
+    return weights / weights.sum()
+
+
+def target_accuracy(flux: Tensor, shares: Tensor, power_w: float, pixel_area_m2: float) -> float:
+    """How close the (rows, columns) flux (W/m^2) comes to the target distribution: 1 - sum|F - T| / sum T,
+    T the target `shares` carrying the reflected `power_w` (W) over pixels of `pixel_area_m2`; 1 is the
+    target met, power spilled off the receiver counts as missing."""
+    wanted = shares * (power_w / pixel_area_m2)
+    return float(1 - (flux - wanted).abs().sum() / wanted.sum())
 
 
 def limit_text(limit_kw_m2: float | list[list[float]]) -> str:
@@ -61,6 +86,23 @@ def limit_text(limit_kw_m2: float | list[list[float]]) -> str:
         return f"{limit_kw_m2:g} kW/m²"
     values = [v for row in limit_kw_m2 for v in row]
     return f"a {len(limit_kw_m2)} x {len(limit_kw_m2[0])} map of {min(values):g}-{max(values):g} kW/m²"
+
+
+@dataclass
+class Goal:
+    """What an aiming is for (config optimise_aim): keep `limit` (W/m^2, one value or a (rows, columns)
+    map) and either maximise the power on the receiver (`target` None) or approach the `target`
+    distribution ((rows, columns) shares of the reflected power, `target_shares`)."""
+
+    limit: Limit
+    target: Tensor | None = None
+
+    @staticmethod
+    def from_settings(settings: dict, shape: tuple[int, int], device: torch.device | str = "cpu") -> Goal:
+        """The goal of config optimise_aim's `limit_kw_m2` and `target` on a receiver grid of `shape`."""
+        target = settings.get("target")
+        return Goal(limit_map(settings["limit_kw_m2"], shape, device=device),
+                    None if target is None else target_shares(target, shape, device=device))
 
 
 def peak_over_limit(flux: Tensor, limit: Limit) -> float:
@@ -211,12 +253,15 @@ class AimResult:
         peak_over_limit: the largest ratio of the model's flux at those offsets to the limit.
         on_receiver_w: the model's power on the receiver (W).
         feasible: whether the model's map keeps the limit.
+        target_accuracy: with a target distribution, how close the model's map comes to it
+            (`target_accuracy`); None without.
     """
 
     offsets: Tensor
     peak_over_limit: float
     on_receiver_w: float
     feasible: bool
+    target_accuracy: float | None = None
 
 
 def optimise(
@@ -229,8 +274,10 @@ def optimise(
     learning_rate_m: float | None = None,
     penalty: tuple[float, float] = (1.0, 1e6),
     seed: int = 0,
+    target: Tensor | None = None,
 ) -> AimResult:
-    """Aim offsets that maximise the power on the receiver with the peak at most `limit_w_m2`.
+    """Aim offsets that maximise the power on the receiver with the peak at most `limit_w_m2`, or, with
+    a `target`, that bring the map closest to that distribution with the peak at most the limit.
 
     Args:
         spots: the heliostats' spots (SpotPatches).
@@ -242,6 +289,9 @@ def optimise(
         penalty: the weight of the excess flux penalty at the first and the last step (grows
             geometrically between them).
         seed: seeds the sub-pixel move of the start from which the descent begins.
+        target: (rows, columns) the share of the spots' power each pixel should get (`target_shares`):
+            the descent then minimises the squared difference to it (relative to the target's own), and
+            the aiming kept is the one that keeps the limit with the highest `target_accuracy`.
     """
     rows, cols = spots.shape
     half = torch.tensor(
@@ -260,16 +310,18 @@ def optimise(
     anneal = torch.optim.lr_scheduler.CosineAnnealingLR(adam, max(steps, 1), eta_min=step_m / 20)
     pixel_area = spots.pixel_m[0] * spots.pixel_m[1]
     total = float(spots.power_w().sum())
+    wanted = None if target is None else target.to(half) * (total / pixel_area)  # (rows, columns) W/m^2
     growth = math.log(penalty[1] / penalty[0]) / max(steps - 1, 1)
-    best: tuple[bool, Tensor, float, float] | None = None
+    best: tuple[bool, Tensor, float, float, float] | None = None
     for step in range(steps + 1):
         with torch.no_grad():  # judged at whole-pixel moves, where the shifted spot is exact
             snapped = torch.round(offsets / pixel) * pixel
             judged = render(spots, snapped)
         peak, power = peak_over_limit(judged, limit_w_m2), float(judged.sum()) * pixel_area
         feasible = peak <= 1.0
-        if best is None or _better(feasible, peak, power, best[0], best[2], best[3]):
-            best = (feasible, snapped, peak, power)
+        score = power if target is None else target_accuracy(judged, target, total, pixel_area)
+        if best is None or _better(feasible, peak, score, best[0], best[2], best[3]):
+            best = (feasible, snapped, peak, score, power)
         if step == steps:
             break
         if step == 0:
@@ -278,7 +330,10 @@ def optimise(
         flux = render(spots, offsets)
         weight = penalty[0] * math.exp(growth * step)
         excess = torch.relu(flux / limit_w_m2 - 1)
-        loss = -flux.sum() * pixel_area / total + weight * (excess**2).mean()
+        if wanted is None:
+            loss = -flux.sum() * pixel_area / total + weight * (excess**2).mean()
+        else:
+            loss = ((flux - wanted) ** 2).mean() / (wanted**2).mean() + weight * (excess**2).mean()
         adam.zero_grad()
         loss.backward()
         adam.step()
@@ -286,17 +341,17 @@ def optimise(
         with torch.no_grad():
             offsets.copy_(torch.max(torch.min(offsets, half), -half))
     assert best is not None
-    feasible, chosen, peak, power = best
-    return AimResult(chosen, peak, power, feasible)
+    feasible, chosen, peak, score, power = best
+    return AimResult(chosen, peak, power, feasible, None if target is None else score)
 
 
-def _better(feasible: bool, peak: float, power: float, best_feasible: bool, best_peak: float, best_power: float
+def _better(feasible: bool, peak: float, score: float, best_feasible: bool, best_peak: float, best_score: float
             ) -> bool:
-    """Whether an iterate beats the best so far: keeping the limit first, then more power on the
-    receiver (by more than POWER_TOLERANCE: an aiming that keeps the limit is not moved for round-off),
-    or, while none keeps it, a lower peak over the limit."""
+    """Whether an iterate beats the best so far: keeping the limit first, then a higher score (the power
+    on the receiver, or the target accuracy) by more than POWER_TOLERANCE of it (an aiming that keeps
+    the limit is not moved for round-off), or, while none keeps it, a lower peak over the limit."""
     if feasible != best_feasible:
         return feasible
     if feasible:
-        return power > best_power * (1 + POWER_TOLERANCE)
+        return score > best_score + POWER_TOLERANCE * abs(best_score)
     return peak < best_peak

@@ -25,6 +25,9 @@ aim.json, per design point and strategy (`default`, `ideal`, `hybrid`, `truth`):
     model_peak_over_limit     the peak / limit the strategy's own model promised (its shifted map)
     mean_aim_move_m           mean distance of the aim points from the default aiming (m)
 plus `aim_points_m` per strategy: (N, 2) aim points on the receiver (right, up; m, from its centre).
+With a target distribution (optimise_aim.target) the optimised aimings approach it instead of
+maximising the power, and each row adds `truth_target_accuracy` and `model_target_accuracy`
+(field.aim.target_accuracy: 1 - sum|F - T| / sum T, T the target carrying the reflected power).
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ from torch import Tensor
 
 from helioflow.device import resolve_device
 from helioflow.errors import ConfigError
-from helioflow.field.aim import Limit, SpotPatches, limit_map, limit_text, optimise, peak_over_limit
+from helioflow.field.aim import AimResult, Goal, SpotPatches, limit_text, optimise, peak_over_limit, target_accuracy
 from helioflow.field.compose import (
     Calibration,
     FieldScene,
@@ -118,12 +121,12 @@ def model_spots(
 
 
 def judge(scene: FieldScene, effects: dict, heliostats: list[Heliostat], point: int, aims: Tensor,
-          limit_w_m2: Limit, spec: dict, device: torch.device, slope_error: dict[int, float] | None = None,
+          goal: Goal, spec: dict, device: torch.device, slope_error: dict[int, float] | None = None,
           ) -> tuple[dict[str, float], np.ndarray]:
     """`heliostats` under `effects` at design point `point`, aimed at `aims` ((N, 3) ENU, m), traced
     again (field_flux: shading and blocking at the new orientations): ({peak_over_limit, intercepted_w,
-    spillage, area_over_limit}, the (H, W) flux map (W/m^2)); the limit (W/m^2) one value or an (H, W)
-    map on `device` (field.aim.limit_map); spec: dni_w_m2, cells_per_side; slope_error as trace_field's."""
+    spillage, area_over_limit, and with the goal's target target_accuracy}, the (H, W) flux map (W/m^2));
+    the goal's tensors on `device`; spec: dni_w_m2, cells_per_side; slope_error as trace_field's."""
     one = dataclasses.replace(
         scene, aims=aims, azimuth=scene.azimuth[point:point + 1], elevation=scene.elevation[point:point + 1],
         measured=[],
@@ -133,44 +136,56 @@ def judge(scene: FieldScene, effects: dict, heliostats: list[Heliostat], point: 
     pw, ph = scene.receiver.pixel_size
     on = float(flux.budget["on_receiver"][0].sum())
     spilled = float(flux.budget["spilled"][0].sum())
-    return {
-        "peak_over_limit": peak_over_limit(image, limit_w_m2),
+    metrics = {
+        "peak_over_limit": peak_over_limit(image, goal.limit),
         "intercepted_w": float(image.sum()) * pw * ph,
         "spillage": spilled / max(on + spilled, 1e-30),
-        "area_over_limit": float((image > limit_w_m2).double().mean()),
-    }, image.cpu().numpy()
+        "area_over_limit": float((image > goal.limit).double().mean()),
+    }
+    if goal.target is not None:
+        metrics["target_accuracy"] = target_accuracy(image, goal.target, on + spilled, pw * ph)
+    return metrics, image.cpu().numpy()
 
 
-def choose_aims(spots: dict[str, Tensor], start: Tensor, limit_w_m2: Limit, settings: dict, receiver: Target
-                ) -> tuple[dict[str, Tensor], dict[str, float | None]]:
-    """({model: (N, 2) aim offsets (m)}, {model: the peak / limit its own map promises}) optimised
-    (field.aim.optimise) on each model's (N, He, We) centre-aimed spots on the extended receiver, from
-    the (N, 2) `start` offsets; settings: config field.optimise_aim (region, steps)."""
+def choose_aims(spots: dict[str, Tensor], start: Tensor, goal: Goal, settings: dict, receiver: Target
+                ) -> tuple[dict[str, Tensor], dict[str, dict[str, float | None]]]:
+    """({model: (N, 2) aim offsets (m)}, {model: what its own map promises (`promised`)}) optimised
+    (field.aim.optimise) for `goal` on each model's (N, He, We) centre-aimed spots on the extended
+    receiver, from the (N, 2) `start` offsets; settings: config optimise_aim (region, steps)."""
     chosen: dict[str, Tensor] = {}
-    promised: dict[str, float | None] = {}
+    promises: dict[str, dict[str, float | None]] = {}
     for m, maps in spots.items():
         patches = SpotPatches.from_maps(maps, receiver.resolution, receiver.pixel_size)
-        result = optimise(patches, start, limit_w_m2, region=settings["region"], steps=settings["steps"])
-        chosen[m], promised[m] = result.offsets, result.peak_over_limit
-    return chosen, promised
+        result = optimise(patches, start, goal.limit, region=settings["region"], steps=settings["steps"],
+                          target=goal.target)
+        chosen[m], promises[m] = result.offsets, promised(result, goal)
+    return chosen, promises
 
 
-def margin_aim(spots: Tensor, start: Tensor, plain: Tensor, limit_w_m2: Limit, settings: dict, covariances: Tensor,
-               receiver: Target, seed: int) -> tuple[Tensor, float, dict[str, Any]]:
+def promised(result: AimResult | None, goal: Goal) -> dict[str, float | None]:
+    """The aim JSON's model_* entries of an aiming: its own model's peak over the limit and, with a
+    target, its target accuracy; None for an aiming no model chose (`default`)."""
+    keys = ("peak_over_limit", "target_accuracy") if goal.target is not None else ("peak_over_limit",)
+    return {f"model_{k}": None if result is None else getattr(result, k) for k in keys}
+
+
+def margin_aim(spots: Tensor, start: Tensor, plain: Tensor, goal: Goal, settings: dict, covariances: Tensor,
+               receiver: Target, seed: int) -> tuple[Tensor, dict[str, float | None], dict[str, Any]]:
     """((N, 2) aim offsets (m) that keep the limit with settings["keep_probability"] under the (N, 2, 2)
-    pointing covariances (m^2) on the receiver (field/margin.py), the peak / limit its own map promises,
+    pointing covariances (m^2) on the receiver (field/margin.py), what its own map promises (`promised`),
     {"bound": (the peak's bound / limit at the `plain` offsets, at the chosen ones), "limit_fraction",
     "pointing_sigma_m": median and max RMS displacement (m) over the heliostats with one, their count})
     for one model's (N, He, We) centre-aimed spots."""
     patches = SpotPatches.from_maps(spots, receiver.resolution, receiver.pixel_size)
     probability = settings["keep_probability"]
     draws = displacement_draws(covariances, settings["draws"], seed=seed)
-    result, bound, fraction = optimise_with_margin(patches, start, limit_w_m2, draws, probability,
-                                                   region=settings["region"], steps=settings["steps"])
+    result, bound, fraction = optimise_with_margin(patches, start, goal.limit, draws, probability,
+                                                   region=settings["region"], steps=settings["steps"],
+                                                   target=goal.target)
     sigma = covariances.diagonal(dim1=-2, dim2=-1).sum(-1).sqrt()  # (N,) RMS displacement (m)
     known = sigma[sigma > 0]
-    return result.offsets, result.peak_over_limit, {
-        "bound": (peak_quantile(patches, plain, draws, probability, limit_w_m2), bound),
+    return result.offsets, promised(result, goal), {
+        "bound": (peak_quantile(patches, plain, draws, probability, goal.limit), bound),
         "limit_fraction": fraction,
         "pointing_sigma_m": {"median": float(known.median()) if len(known) else 0.0, "max": float(sigma.max()),
                              "heliostats": len(known)}}
@@ -197,7 +212,7 @@ def optimise_aim(
         )
     device = resolve_device(spec["device"])
     scene = build_scene(spec, device)
-    limit, region = limit_map(settings["limit_kw_m2"], scene.receiver.resolution, device=device), settings["region"]
+    goal, region = Goal.from_settings(settings, scene.receiver.resolution, device), settings["region"]
     cals = load_calibrations(scene, model_paths, dataset_paths, device)
     spots = model_spots(spec, scene, region, cals, device)
     right, up = scene.receiver.axes()
@@ -213,14 +228,14 @@ def optimise_aim(
     maps: dict[str, list[np.ndarray]] = {s: [] for s in strategies}
     moves: dict[str, list[np.ndarray]] = {s: [] for s in strategies}
     for i, point in enumerate(scene.points):
-        chosen, promised = choose_aims({m: spots[m][i] for m in MODELS}, start, limit, settings, scene.receiver)
-        chosen["default"], promised["default"] = start, None
+        chosen, promises = choose_aims({m: spots[m][i] for m in MODELS}, start, goal, settings, scene.receiver)
+        chosen["default"], promises["default"] = start, promised(None, goal)
         margin: dict[str, Any] = {}
         if probability is not None:  # the hybrid's map under its heliostats' pointing sigma
             sun = sun_vector(scene.azimuth[i], scene.elevation[i]).double()
             covariances = pointing_covariances([h.ideal() for h in scene.true], tracking, sun, scene.aims,
                                                scene.receiver)
-            chosen[MARGIN], promised[MARGIN], margin = margin_aim(spots["hybrid"][i], start, chosen["hybrid"], limit,
+            chosen[MARGIN], promises[MARGIN], margin = margin_aim(spots["hybrid"][i], start, chosen["hybrid"], goal,
                                                                   settings, covariances, scene.receiver, seed=i)
             known = covariances.diagonal(dim1=-2, dim2=-1).sum(-1) > 0
             offsets = wide.centroid(spots["truth"][i].double()) - wide.centroid(spots["hybrid"][i].double())
@@ -231,12 +246,12 @@ def optimise_aim(
         row: dict[str, Any] = {}
         for s in strategies:
             aims = scene.receiver.center + chosen[s][:, :1] * right + chosen[s][:, 1:] * up
-            metrics, image = judge(scene, spec["world_effects"], scene.true, i, aims, limit, spec, device)
+            metrics, image = judge(scene, spec["world_effects"], scene.true, i, aims, goal, spec, device)
             maps[s].append(image)
             moves[s].append(chosen[s].cpu().numpy())
             row[s] = {
                 **{f"truth_{k}": v for k, v in metrics.items()},
-                "model_peak_over_limit": promised[s],
+                **promises[s],
                 "mean_aim_move_m": float((chosen[s] - start).norm(dim=-1).mean()),
                 "aim_points_m": chosen[s].tolist(),
             }
@@ -250,6 +265,7 @@ def optimise_aim(
         points[point] = row
     result_json = {
         "limit_kw_m2": settings["limit_kw_m2"],
+        **({"target": settings["target"]} if settings.get("target") is not None else {}),
         "region": region,
         "heliostats": len(scene.names),
         "measured": [scene.names[k] for k in scene.measured],
@@ -275,7 +291,7 @@ def optimise_aim(
     write_text_atomic(json_path, json.dumps(result_json, indent=2) + "\n")
     plot_aim_maps(
         figure_path, maps, moves,
-        scene.points, limit, (scene.receiver.width, scene.receiver.height),
+        scene.points, goal.limit, (scene.receiver.width, scene.receiver.height),
         f"{len(scene.names)} heliostats, {len(scene.measured)} measured with {spec['network']}: true flux "
         f"under each aiming, limit {limit_text(settings['limit_kw_m2'])}",
         ("default", "hybrid"),

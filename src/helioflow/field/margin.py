@@ -124,15 +124,16 @@ def peak_quantile(spots: SpotPatches, offsets: Tensor, displacements: Tensor, pr
 
 
 def optimise_with_margin(spots: SpotPatches, start: Tensor, limit_w_m2: Limit, displacements: Tensor,
-                         probability: float, *, region: float, steps: int,
-                         seed: int = 0) -> tuple[AimResult, float, float]:
+                         probability: float, *, region: float, steps: int, seed: int = 0,
+                         target: Tensor | None = None) -> tuple[AimResult, float, float]:
     """(the aiming, its peak over the limit's `probability` quantile over the `displacements`, the fraction
     of the limit it was optimised under): the largest fraction f, to 2^-BISECTIONS, whose optimised aiming
     (field.aim.optimise under f x limit) keeps the quantile at most 1; the full limit when its own aiming
     already does, LOWEST_FRACTION's when none does. The aiming's peak_over_limit and feasible are over the
-    real limit, not f x limit. The limit (W/m^2) is one value or a map (field.aim.limit_map)."""
+    real limit, not f x limit. The limit (W/m^2) is one value or a map (field.aim.limit_map); `target` as
+    field.aim.optimise's."""
     def attempt(fraction: float) -> tuple[AimResult, float]:
-        result = optimise(spots, start, fraction * limit_w_m2, region=region, steps=steps, seed=seed)
+        result = optimise(spots, start, fraction * limit_w_m2, region=region, steps=steps, seed=seed, target=target)
         peak = result.peak_over_limit * fraction  # over the real limit
         result = replace(result, peak_over_limit=peak, feasible=peak <= 1.0)
         return result, peak_quantile(spots, result.offsets, displacements, probability, limit_w_m2)

@@ -27,6 +27,8 @@ plant/aim/<plant>.json, per design point and strategy:
     aim_points_m                  (N, 2) aim points (right, up; m from the receiver centre)
 plus, with keep_probability, `model_peak_bound_over_limit` (calibrated, calibrated_margin),
 `limit_fraction` and per design point `pointing_sigma_m` (as aim.json's).
+With a target distribution (optimise_aim.target), also `calibrated_target_accuracy` and
+`model_target_accuracy` (as aim.json's `truth_target_accuracy`, field.aiming).
 """
 
 from __future__ import annotations
@@ -44,8 +46,8 @@ import torch
 from torch import Tensor
 
 from helioflow.device import resolve_device
-from helioflow.field.aim import limit_map, limit_text
-from helioflow.field.aiming import choose_aims, extended_receiver, judge, margin_aim
+from helioflow.field.aim import Goal, limit_text
+from helioflow.field.aiming import choose_aims, extended_receiver, judge, margin_aim, promised
 from helioflow.field.compose import trace_field
 from helioflow.field.figure import plot_aim_maps
 from helioflow.field.margin import pointing_covariances
@@ -84,7 +86,7 @@ def optimise_plant_aim(spec: dict, json_path: str | os.PathLike, figure_path: st
     settings, device = spec["settings"]["optimise_aim"], resolve_device(spec["device"])
     plant = load_plant(spec, device)
     scene = plant.scene
-    limit = limit_map(settings["limit_kw_m2"], scene.receiver.resolution, device=device)
+    goal = Goal.from_settings(settings, scene.receiver.resolution, device)
     probability = settings.get("keep_probability")
     spots = plant_spots(plant, spec, settings["region"], device)
     judged = {"dni_w_m2": spec["dni_w_m2"], "cells_per_side": spec["settings"]["cells_per_side"]}
@@ -96,23 +98,23 @@ def optimise_plant_aim(spec: dict, json_path: str | os.PathLike, figure_path: st
     points: dict[str, Any] = {}
     sigmas: dict[str, dict] = {}
     for i, point in enumerate(scene.points):
-        chosen, promised = choose_aims({m: spots[m][i] for m in MODELS}, start, limit, settings, scene.receiver)
-        chosen["default"], promised["default"] = start, None
+        chosen, promises = choose_aims({m: spots[m][i] for m in MODELS}, start, goal, settings, scene.receiver)
+        chosen["default"], promises["default"] = start, promised(None, goal)
         margin: dict[str, Any] = {}
         if probability is not None:
             sun = sun_vector(scene.azimuth[i], scene.elevation[i]).double()
             covariances = pointing_covariances(plant.fitted, plant.tracking, sun, scene.aims, scene.receiver)
-            chosen[MARGIN], promised[MARGIN], margin = margin_aim(spots["calibrated"][i], start, chosen["calibrated"],
-                                                                  limit, settings, covariances, scene.receiver, seed=i)
+            chosen[MARGIN], promises[MARGIN], margin = margin_aim(spots["calibrated"][i], start, chosen["calibrated"],
+                                                                  goal, settings, covariances, scene.receiver, seed=i)
             sigmas[point] = margin["pointing_sigma_m"]
         row: dict[str, Any] = {}
         for s in strategies:
             aims = scene.receiver.center + chosen[s][:, :1] * right + chosen[s][:, 1:] * up
-            metrics, image = judge(scene, plant.effects, plant.fitted, i, aims, limit, judged, device, plant.slopes)
+            metrics, image = judge(scene, plant.effects, plant.fitted, i, aims, goal, judged, device, plant.slopes)
             maps[s].append(image)
             moves[s].append(chosen[s].cpu().numpy())
             row[s] = {**{f"calibrated_{k}": v for k, v in metrics.items()},
-                      "model_peak_over_limit": promised[s],
+                      **promises[s],
                       "mean_aim_move_m": float((chosen[s] - start).norm(dim=-1).mean()),
                       "aim_points_m": chosen[s].tolist()}
         if margin:
@@ -123,6 +125,7 @@ def optimise_plant_aim(spec: dict, json_path: str | os.PathLike, figure_path: st
     result = {
         "plant": spec["plant"],
         "limit_kw_m2": settings["limit_kw_m2"],
+        **({"target": settings["target"]} if settings.get("target") is not None else {}),
         "region": settings["region"],
         "heliostats": scene.names,
         "calibrated": [scene.names[k] for k in scene.measured],
@@ -141,7 +144,7 @@ def optimise_plant_aim(spec: dict, json_path: str | os.PathLike, figure_path: st
     write_text_atomic(json_path, json.dumps(result, indent=2) + "\n")
     plot_aim_maps(
         figure_path, maps, moves,
-        scene.points, limit, (scene.receiver.width, scene.receiver.height),
+        scene.points, goal.limit, (scene.receiver.width, scene.receiver.height),
         f"plant entry '{spec['plant']}': {len(scene.names)} heliostats, {len(scene.measured)} calibrated: the "
         f"calibrated plant's flux under each aiming, limit {limit_text(settings['limit_kw_m2'])}",
         ("default", "calibrated"),

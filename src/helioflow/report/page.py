@@ -209,12 +209,14 @@ def _aim_section(files: dict[str, list[str]]) -> str:
                      f"{len(result['measured'])} measured with {esc(result['network'])}. Every aiming is "
                      "traced on the true field (truth_*); model_peak_over_limit is what its own model "
                      "promised.</p>")
+        parts.append(_target_text(result))
         if "keep_probability" in result:
             parts.append(f"<p>hybrid_margin: aimed on the hybrid map so that its peak keeps the limit with probability "
                          f"{result['keep_probability']:g} under the calibrated heliostats' pointing σ "
                          "(model_peak_bound_over_limit: a 95 %-confidence bound of that quantile).</p>")
         for point, row in result["design_points"].items():
-            columns = [*AIM_COLUMNS, *(["model_peak_bound_over_limit"] if "keep_probability" in result else [])]
+            columns = [*AIM_COLUMNS, *(["model_peak_bound_over_limit"] if "keep_probability" in result else []),
+                       *(["truth_target_accuracy", "model_target_accuracy"] if "target" in result else [])]
             parts.append(f"<h3>{esc(point)}</h3>")
             parts.append(table(["aiming", *columns], [[s, *(m.get(c) for c in columns)] for s, m in row.items()]))
     return "\n".join(parts)
@@ -319,6 +321,16 @@ def _plant_flux_part(path: str) -> str:
         download(path, "application/json")])
 
 
+def _target_text(result: dict) -> str:
+    """A paragraph on an aim JSON's target distribution; empty without one."""
+    if "target" not in result:
+        return ""
+    cells = result["target"]
+    return (f"<p>The optimised aimings approach a target distribution ({len(cells)} x {len(cells[0])} cells, "
+            "scaled to the reflected power) under the limit instead of maximising the power: target_accuracy = "
+            "1 − Σ|F − T| / Σ T.</p>")
+
+
 PLANT_AIM_COLUMNS = ("calibrated_peak_over_limit", "calibrated_intercepted_w", "calibrated_spillage",
                      "calibrated_area_over_limit", "model_peak_over_limit", "mean_aim_move_m")
 
@@ -328,13 +340,14 @@ def _plant_aim_part(path: str) -> str:
     data = read_json(path)
     if not isinstance(data, dict) or "design_points" not in data or "limit_kw_m2" not in data:
         raise DataError(f"{path}: not a plant aim (written by `plant-aim`): needs limit_kw_m2 and design_points")
-    bound = ["model_peak_bound_over_limit"] if "keep_probability" in data else []
+    extra = ["model_peak_bound_over_limit"] if "keep_probability" in data else []
+    extra += ["calibrated_target_accuracy", "model_target_accuracy"] if "target" in data else []
     parts = [f"<h3>Aim points on the receiver of {esc(Path(path).stem)}: limit {limit_text(data['limit_kw_m2'])}, "
              f"{len(data['heliostats'])} heliostats, {len(data['calibrated'])} calibrated</h3>",
              "<p>Each aiming is traced on the calibrated plant (calibrated_*): a real plant has no truth to judge on; "
-             "model_peak_over_limit is what its own model promised.</p>"]
+             "model_peak_over_limit is what its own model promised.</p>", _target_text(data)]
     for point, row in data["design_points"].items():
-        columns = [*PLANT_AIM_COLUMNS, *bound]
+        columns = [*PLANT_AIM_COLUMNS, *extra]
         parts += [f"<h4>{esc(point)}</h4>",
                   table(["aiming", *columns], [[s, *(m.get(c) for c in columns)] for s, m in row.items()])]
     return "\n".join([*parts, download(path, "application/json")])
