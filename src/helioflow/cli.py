@@ -351,6 +351,13 @@ def _with_spec(p: argparse.ArgumentParser) -> None:
                                   "(what the Snakefile passes)")
 
 
+
+def _plant_flux_spec_arguments(p: argparse.ArgumentParser) -> None:
+    """--spec and --plant of the commands that read rule plant_flux's spec (plant-flux, plant-aim)."""
+    p.add_argument("--spec", required=True, help="the rule's parameters as JSON, or @FILE (what the Snakefile "
+                                                 "passes: specs/plant_flux.json)")
+    p.add_argument("--plant", required=True, help="the plant entry (a key of the spec)")
+
 def parser() -> argparse.ArgumentParser:
     """The `helioflow` command line: one subcommand per step."""
     ap = argparse.ArgumentParser(prog="helioflow", description=__doc__.splitlines()[0])
@@ -484,9 +491,7 @@ def parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("plant-flux", help="a plant's flux maps on its receiver: calibrated heliostats as fitted, "
                                           "the rest ideal")
-    p.add_argument("--spec", required=True, help="the rule's parameters as JSON, or @FILE (what the Snakefile "
-                                                 "passes: specs/plant_flux.json)")
-    p.add_argument("--plant", required=True, help="the plant entry (a key of the spec)")
+    _plant_flux_spec_arguments(p)
     p.add_argument("--flux", required=True, help="plant/flux/<plant>.h5")
     p.add_argument("--figure", required=True, help="plant/flux/<plant>.png")
     p.add_argument("--metrics", required=True, help="plant/flux/<plant>.json")
@@ -494,9 +499,7 @@ def parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("plant-aim", help="a plant's aim points under its receiver's flux limit, chosen on the "
                                          "design and on the calibrated heliostats")
-    p.add_argument("--spec", required=True, help="the rule's parameters as JSON, or @FILE (what the Snakefile "
-                                                 "passes: specs/plant_flux.json)")
-    p.add_argument("--plant", required=True, help="the plant entry (a key of the spec)")
+    _plant_flux_spec_arguments(p)
     p.add_argument("--output", required=True, help="plant/aim/<plant>.json")
     p.add_argument("--figure", required=True, help="plant/aim/<plant>.png")
     p.set_defaults(func=cmd_plant_aim)

@@ -38,6 +38,7 @@ import logging
 import math
 import os
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -162,6 +163,31 @@ def choose_aims(spots: dict[str, Tensor], start: Tensor, goal: Goal, settings: d
     return chosen, promises
 
 
+def judge_aimings(chosen: dict[str, Tensor], promises: dict[str, dict[str, float | None]], start: Tensor,
+                  receiver: Target, prefix: str, maps: dict[str, list[np.ndarray]], moves: dict[str, list[np.ndarray]],
+                  margin: dict[str, Any], plain: str, with_margin: str,
+                  judge_at: Callable[[Tensor], tuple[dict[str, float], np.ndarray]]) -> dict[str, dict[str, Any]]:
+    """One design point's row of an aim JSON, in the order of `maps` (the strategies): each strategy's
+    (N, 2) aim offsets (m) turned into ENU aim points and judged (`judge_at`: (N, 3) aim points -> metrics,
+    (H, W) map), its metrics prefixed `prefix`_, what its own model promised, its mean aim move from
+    `start` and its aim points; its map and offsets appended to `maps` and `moves` (the figure's). With a
+    `margin` (margin_aim's), the `plain` aiming's and the `with_margin` one's bounds and the latter's
+    limit fraction are added."""
+    right, up = receiver.axes()
+    row: dict[str, dict[str, Any]] = {}
+    for s in maps:
+        metrics, image = judge_at(receiver.center + chosen[s][:, :1] * right + chosen[s][:, 1:] * up)
+        maps[s].append(image)
+        moves[s].append(chosen[s].cpu().numpy())
+        row[s] = {**{f"{prefix}_{k}": v for k, v in metrics.items()}, **promises[s],
+                  "mean_aim_move_m": float((chosen[s] - start).norm(dim=-1).mean()),
+                  "aim_points_m": chosen[s].tolist()}
+    if margin:
+        row[plain]["model_peak_bound_over_limit"], row[with_margin]["model_peak_bound_over_limit"] = margin["bound"]
+        row[with_margin]["limit_fraction"] = margin["limit_fraction"]
+    return row
+
+
 def promised(result: AimResult | None, goal: Goal) -> dict[str, float | None]:
     """The aim JSON's model_* entries of an aiming: its own model's peak over the limit and, with a
     target, its target accuracy; None for an aiming no model chose (`default`)."""
@@ -215,7 +241,6 @@ def optimise_aim(
     goal, region = Goal.from_settings(settings, scene.receiver.resolution, device), settings["region"]
     cals = load_calibrations(scene, model_paths, dataset_paths, device)
     spots = model_spots(spec, scene, region, cals, device)
-    right, up = scene.receiver.axes()
     start = scene.receiver.to_plane(scene.aims)  # (N, 2) the default aiming
     wide = extended_receiver(scene.receiver, region)  # where the centre-aimed spots lie
     probability = settings.get("keep_probability")
@@ -243,21 +268,9 @@ def optimise_aim(
             margin["pointing_sigma_m"] |= {
                 "truth_within_95": share,
                 "truth_offset_rms_m": float(offsets[known].norm(dim=-1).pow(2).mean().sqrt()) if known.any() else 0.0}
-        row: dict[str, Any] = {}
-        for s in strategies:
-            aims = scene.receiver.center + chosen[s][:, :1] * right + chosen[s][:, 1:] * up
-            metrics, image = judge(scene, spec["world_effects"], scene.true, i, aims, goal, spec, device)
-            maps[s].append(image)
-            moves[s].append(chosen[s].cpu().numpy())
-            row[s] = {
-                **{f"truth_{k}": v for k, v in metrics.items()},
-                **promises[s],
-                "mean_aim_move_m": float((chosen[s] - start).norm(dim=-1).mean()),
-                "aim_points_m": chosen[s].tolist(),
-            }
+        row = judge_aimings(chosen, promises, start, scene.receiver, "truth", maps, moves, margin, "hybrid", MARGIN,
+                            lambda aims: judge(scene, spec["world_effects"], scene.true, i, aims, goal, spec, device))
         if margin:
-            row["hybrid"]["model_peak_bound_over_limit"], row[MARGIN]["model_peak_bound_over_limit"] = margin["bound"]
-            row[MARGIN]["limit_fraction"] = margin["limit_fraction"]
             sigmas[point] = margin["pointing_sigma_m"]
         bound = row["truth"]["truth_intercepted_w"]
         for s in strategies:

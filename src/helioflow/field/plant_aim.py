@@ -47,7 +47,7 @@ from torch import Tensor
 
 from helioflow.device import resolve_device
 from helioflow.field.aim import Goal, limit_text
-from helioflow.field.aiming import choose_aims, extended_receiver, judge, margin_aim, promised
+from helioflow.field.aiming import choose_aims, extended_receiver, judge, judge_aimings, margin_aim, promised
 from helioflow.field.compose import trace_field
 from helioflow.field.figure import plot_aim_maps
 from helioflow.field.margin import pointing_covariances
@@ -90,7 +90,6 @@ def optimise_plant_aim(spec: dict, json_path: str | os.PathLike, figure_path: st
     probability = settings.get("keep_probability")
     spots = plant_spots(plant, spec, settings["region"], device)
     judged = {"dni_w_m2": spec["dni_w_m2"], "cells_per_side": spec["settings"]["cells_per_side"]}
-    right, up = scene.receiver.axes()
     start = scene.receiver.to_plane(scene.aims)  # (N, 2) the default aiming
     strategies = (*STRATEGIES, MARGIN) if probability is not None else STRATEGIES
     maps: dict[str, list[np.ndarray]] = {s: [] for s in strategies}
@@ -107,21 +106,9 @@ def optimise_plant_aim(spec: dict, json_path: str | os.PathLike, figure_path: st
             chosen[MARGIN], promises[MARGIN], margin = margin_aim(spots["calibrated"][i], start, chosen["calibrated"],
                                                                   goal, settings, covariances, scene.receiver, seed=i)
             sigmas[point] = margin["pointing_sigma_m"]
-        row: dict[str, Any] = {}
-        for s in strategies:
-            aims = scene.receiver.center + chosen[s][:, :1] * right + chosen[s][:, 1:] * up
-            metrics, image = judge(scene, plant.effects, plant.fitted, i, aims, goal, judged, device, plant.slopes)
-            maps[s].append(image)
-            moves[s].append(chosen[s].cpu().numpy())
-            row[s] = {**{f"calibrated_{k}": v for k, v in metrics.items()},
-                      **promises[s],
-                      "mean_aim_move_m": float((chosen[s] - start).norm(dim=-1).mean()),
-                      "aim_points_m": chosen[s].tolist()}
-        if margin:
-            row["calibrated"]["model_peak_bound_over_limit"], row[MARGIN]["model_peak_bound_over_limit"] = \
-                margin["bound"]
-            row[MARGIN]["limit_fraction"] = margin["limit_fraction"]
-        points[point] = row
+        points[point] = judge_aimings(
+            chosen, promises, start, scene.receiver, "calibrated", maps, moves, margin, "calibrated", MARGIN,
+            lambda aims: judge(scene, plant.effects, plant.fitted, i, aims, goal, judged, device, plant.slopes))
     result = {
         "plant": spec["plant"],
         "limit_kw_m2": settings["limit_kw_m2"],
