@@ -38,7 +38,10 @@ untilted facets can end with two facets' tilts exchanged: each facet's spot then
 other's belongs, and only the spots' small differences in shape across sun positions (the facets'
 places on the mirror) tell the two apart; no descent crosses from one assignment to the other. On
 the 30-heliostat plant with cantings of 1-2 mrad a canting + tracking fit ended at twice the training
-loss of the one from the true tilts, two facets exchanged; one swap reached it.
+loss of the one from the true tilts, two facets exchanged; one swap reached it. The search over pairs
+grows as the facets' number squared, so it runs on heliostats of at most SWAP_MAX_FACETS facets: on the
+24 facets of the semi-sphere heliostat it took the diagnosis from 97 s to 224 s for the same verdict
+(drt's fits there search the facets' basins by the facet hops below).
 
 A surface fitted on several facets then takes `facet_hops` basin hops: the surface and canting of
 a random block of neighbouring facets (a facet and its 0, 1 or 3 nearest neighbours) are reset to
@@ -107,6 +110,7 @@ HOP_BLURS_PX = (2.0, 0.0)  # blur levels of the descents after a basin hop
 HOP_BLOCK_SIZES = (1, 2, 4)  # facets a basin hop resets: a facet and its nearest neighbours
 SWAP_TRIALS = 6  # exchanges of two facets' tilts descended per pass: those of lowest loss (all of 4 facets' 6)
 SWAP_STEPS = 20  # traces of the short descent from each exchange of two facets' tilts (the rest follows them)
+SWAP_MAX_FACETS = 8  # facet swaps on heliostats of at most this many facets (module docstring; PAINT's have 4)
 PIN_STEPS = 100  # traces of each of a pinned hop's two descents (the rest, then everything)
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 SEARCH_FLOOR = 0.02  # lowest value a spread scalar is searched from (its unit)
@@ -182,8 +186,8 @@ class FitSettings:
             docstring); 0 = none. Each costs the traces of len(HOP_BLURS_PX) descents.
         pinned_hops: pinned hops after the facet hops (module docstring); 0 = none. Each costs
             2 * PIN_STEPS traces of the heliostat.
-        facet_swaps: passes of facet swaps for a fit with canting on several facets (module
-            docstring); 0 = none. Each costs F (F - 1) / 2 traces, SWAP_TRIALS descents of SWAP_STEPS
+        facet_swaps: passes of facet swaps for a fit with canting on 2 to SWAP_MAX_FACETS facets
+            (module docstring); 0 = none. Each costs F (F - 1) / 2 traces, SWAP_TRIALS descents of SWAP_STEPS
             traces and one descent.
         seed: seeds the facet hops' random blocks.
         linearised: fit the tensors of a heliostat with several facets on the linearised trace
@@ -308,7 +312,7 @@ def fit_stages(fit: _Fitter, exact: _Fitter, masks: dict, spread: list[tuple[str
         return descend
 
     stages: list[tuple[str, Stage]] = []
-    swappable = "canting" in masks and fit.scene.heliostat.n_facets > 1
+    swappable = "canting" in masks and 1 < fit.scene.heliostat.n_facets <= SWAP_MAX_FACETS
     if "surface" in masks and (len(masks) > 1 or spread):  # rigid first (module docstring)
         stages.append(("rigid", rigid))
     for r in range(settings.rounds if (masks and spread) else 1):
