@@ -109,8 +109,8 @@ SEPARATED = 0.8  # ... when they bring the pair's correlation below this; else t
 SUN_GRID = [(az, el) for az in range(-120, 121, 40) for el in range(10, 81, 20)]  # where they are sought (deg)
 CORE_FRACTION = 0.05  # the sun-limited core: pixels where the model's spot exceeds this fraction of its peak
 MIRROR_IMAGES = 48  # images (evenly picked) the mirror localisation traces, region by region
-FACET_SWAPS = 1  # passes of facet swaps in every fit with canting (models/physics_fit.py): a fit from untilted
-# facets can end with two facets' tilts exchanged, and the surface then stands in for the canting
+FACET_SWAPS = 1  # passes of facet swaps in every fit with canting on 2-8 facets (models/physics_fit.py): a fit
+# from untilted facets can end with two facets' tilts exchanged, and the surface then stands in for the canting
 SWAP_NOISE = 0.5  # swapping a chosen change for another that ends within this fraction of the noise floor: alike
 
 
@@ -332,8 +332,7 @@ class Diagnosis:
         compatible rigid changes that cut most alone: a surface that stands in for two rigid changes
         may leave neither a meaningful cut alone (on the 30-heliostat plant a tracking error cut
         24.6 % alone and a canting 20 %, together they ended below the surface). Every compatible
-        subset of the changes that cut at all would cost a fit each (on the 24-facet semi-sphere
-        heliostat 14 more fits: its diagnosis 97 s -> 180 s, the verdict the same). On the
+        subset of the changes that cut at all would cost a fit each (journal 2026-12-06). On the
         30-heliostat plant a slope error and a canting were named surface + tracking at held-out
         errors within 1 % of the true pair's; the surface of a bump cuts 1.3-2.7 noise floors below
         the best rigid pair."""

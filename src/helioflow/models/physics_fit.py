@@ -39,9 +39,9 @@ other's belongs, and only the spots' small differences in shape across sun posit
 places on the mirror) tell the two apart; no descent crosses from one assignment to the other. On
 the 30-heliostat plant with cantings of 1-2 mrad a canting + tracking fit ended at twice the training
 loss of the one from the true tilts, two facets exchanged; one swap reached it. The search over pairs
-grows as the facets' number squared, so it runs on heliostats of at most SWAP_MAX_FACETS facets: on the
-24 facets of the semi-sphere heliostat it took the diagnosis from 97 s to 224 s for the same verdict
-(drt's fits there search the facets' basins by the facet hops below).
+grows as the facets' number squared, so it runs on heliostats of at most SWAP_MAX_FACETS facets (on the
+24-facet semi-sphere it doubled the diagnosis' time for the same verdict: journal 2026-12-06; drt's fits
+there search the facets' basins by the facet hops below).
 
 A surface fitted on several facets then takes `facet_hops` basin hops: the surface and canting of
 a random block of neighbouring facets (a facet and its 0, 1 or 3 nearest neighbours) are reset to
