@@ -103,7 +103,7 @@ def test_a_model_that_matches_the_world_raises_no_alarm():
     d = diagnosis(world, world, noise=0.02)
     ranking = d.rank().entries
     assert not any(r["meaningful"] for r in ranking), [(r["effect"], r["relative_reduction"]) for r in ranking]
-    assert all(len(key) <= 1 for key in d.fits)  # no single change helps alone: no pair is fitted
+    assert all(len(key) <= 1 for key in d.scores)  # no single change helps alone: no pair is fitted
     remaining = d.remaining([])  # what is left is the noise, and the noise floor says so
     assert remaining["explained"], remaining
     assert remaining["error"] / 1.5 <= remaining["noise_floor"] <= 1.5 * remaining["error"], remaining
@@ -128,7 +128,7 @@ def test_adding_a_candidate_never_raises_the_training_loss():
     d = diagnosis(world, {"sunshape": BUIE})
 
     def loss(labels) -> float:
-        return d.fitted(labels)[1].history[-1]
+        return d.fit(labels).history[-1]
 
     nested = [c.label for c in d.tried if c.neutral is not None]
     assert {"tracking", "slope_error", "camera", "sunshape: fit csr"} <= set(nested)
@@ -203,11 +203,11 @@ def test_a_surface_gives_way_to_a_rigid_change_the_images_do_not_tell_from_it(su
     bump) stays named. The errors are set, not fitted: this is the selection rule alone."""
     d = diagnosis({"sunshape": BUIE}, {"sunshape": BUIE})
     labels = [c.label for c in d.tried]
-    d.fits = {frozenset(s): (0.03, None) for k in (1, 2) for s in itertools.combinations(labels, k)}
-    d.fits |= {frozenset(): (0.1, None), frozenset({"tracking"}): (0.02, None),
-               frozenset({"canting", "tracking"}): (0.0137, None),
-               frozenset({"surface", "tracking"}): (surface_pair, None)}
-    d.floors = {key: (0.0077, 0.0) for key in d.fits}
+    d.scores = {frozenset(s): 0.03 for k in (1, 2) for s in itertools.combinations(labels, k)}
+    d.scores |= {frozenset(): 0.1, frozenset({"tracking"}): 0.02, frozenset({"canting", "tracking"}): 0.0137,
+                 frozenset({"surface", "tracking"}): surface_pair}
+    d.floors = {key: (0.0077, 0.0) for key in d.scores}
+    d.covariances = {key: None for key in d.scores}  # no significance test: the held-out errors decide
     assert d.free_parameters(["surface"]) > 64 >= d.free_parameters(["canting", "tracking"], with_model=True)
     assert d.select() == ["tracking", named]
 

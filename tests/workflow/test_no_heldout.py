@@ -1,6 +1,6 @@
 """Datasets that hold no images out (docs/data.md: own images without splits or holdout, a PAINT
 dataset without holdout: every image trains) run `snakemake -j2 all` to the end; the diagnosis
-scores its candidates on training images it holds out itself, and says so."""
+scores its candidates by cross-validation over the images, and says so."""
 
 import json
 import shutil
@@ -9,7 +9,7 @@ import numpy as np
 from support.pipeline import REPO, _tiny, _workdir, snakemake
 
 from helioflow.data.hdf5 import CalibrationDataset, read_dataset
-from helioflow.diagnosis.diagnose import OWN_HOLDOUT_EVERY, scoring_split
+from helioflow.diagnosis.diagnose import cross_validation_folds, scoring_split
 
 PAINT = REPO / "tests" / "data" / "paint"
 OWN = REPO / "examples" / "own_images"
@@ -20,12 +20,16 @@ def _dataset(splits: list[str]) -> CalibrationDataset:
     return CalibrationDataset(np.ones((n, 4, 4), np.float32), np.zeros(n), np.full(n, 40.0), np.array(splits))
 
 
-def test_the_diagnosis_scores_on_the_held_out_splits_or_holds_out_training_images_itself():
+def test_the_diagnosis_scores_on_the_held_out_splits_or_cross_validates_over_the_training_images():
     fit, scored, info = scoring_split(_dataset(["train", "interpolation", "train", "extrapolation"]))
     assert fit.tolist() == [0, 2] and scored.tolist() == [1, 3] and info["note"] == ""
     fit, scored, info = scoring_split(_dataset(["train"] * 9))
-    assert scored.tolist() == [1, 1 + OWN_HOLDOUT_EVERY] and fit.tolist() == [0, 2, 3, 4, 6, 7, 8]
-    assert info["images"] == 2 and "held out 2 of its 9 images" in info["note"]
+    assert fit.tolist() == list(range(9)) and scored.tolist() == []
+    assert info["source"] == "4-fold cross-validation" and "fitted 4 times" in info["note"]
+    for n in (2, 3, 7, 9):  # every image held out exactly once, no fold empty
+        folds = cross_validation_folds(n)
+        assert len(folds) == min(4, n) and all(len(f) for f in folds)
+        assert sorted(np.concatenate(folds).tolist()) == list(range(n))
     fit, scored, info = scoring_split(_dataset(["train"]))
     assert fit.tolist() == scored.tolist() == [0] and "training error" in info["note"]
 
@@ -52,11 +56,10 @@ def test_a_paint_and_an_images_dataset_without_held_out_images_run_all_to_the_en
     for dataset in ("real", "own"):
         images = len(read_dataset(workdir / f"results/tiny/datasets/{dataset}.h5").images)
         result = json.loads((workdir / f"results/tiny/diagnosis/{dataset}.json").read_text())
-        own = len(range(1, images, OWN_HOLDOUT_EVERY))
-        assert result["heldout"] == {"source": f"every {OWN_HOLDOUT_EVERY}th training image", "images": own,
+        assert result["heldout"] == {"source": "4-fold cross-validation", "images": 4,  # diagnosis.fit_images
                                      "note": result["heldout"]["note"]}
         assert result["verdict"].startswith(f"The dataset holds no images out (every image trains the networks), so "
-                                            f"the diagnosis held out {own} of its {images} images")
+                                            f"the diagnosis cross-validates over 4 of its {images} images")
     counts = {d: len(read_dataset(workdir / f"results/tiny/datasets/{d}.h5").images) for d in ("real", "own")}
     assert counts == {"real": 12, "own": 12}  # AA39's 12 measurements, 6 of them centered-only
     assert (workdir / "results/tiny/report.html").is_file()

@@ -96,7 +96,7 @@ from helioflow.data.surfaces import read_heliostat
 from helioflow.device import resolve_device
 from helioflow.diagnosis.candidates import Candidate, candidates
 from helioflow.diagnosis.criteria import is_meaningful
-from helioflow.diagnosis.diagnose import _measurements, heldout_error, scoring_split
+from helioflow.diagnosis.diagnose import _measurements, cross_validation_folds, heldout_error, scoring_split
 from helioflow.errors import DataError
 from helioflow.io import write_text_atomic
 from helioflow.models.physical import drt_effects
@@ -439,9 +439,13 @@ def plant_shared(spec: dict, output_json: str | os.PathLike) -> dict:
 
 
 def member(entry: dict, settings: dict, device) -> Member:
-    """A heliostat of the plant fit from its dataset and geometry files (the diagnosis' split and scale)."""
+    """A heliostat of the plant fit from its dataset and geometry files (the diagnosis' split and scale;
+    a dataset that holds no images out is scored on the first of its cross-validation folds)."""
     ds = read_dataset(entry["dataset_path"])
     train_index, heldout_index, _ = scoring_split(ds)
+    if not len(heldout_index):
+        heldout_index = train_index[cross_validation_folds(len(train_index))[0]]
+        train_index = np.setdiff1d(train_index, heldout_index)
 
     def pick(index: np.ndarray, n: int) -> np.ndarray:
         return index[np.linspace(0, len(index) - 1, min(n, len(index))).round().astype(int)]
