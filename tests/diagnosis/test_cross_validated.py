@@ -29,7 +29,7 @@ def cross_validated(world: dict, model: dict) -> CrossValidated:
     images = (images + 0.02 * torch.randn(images.shape, generator=torch.Generator().manual_seed(7))).clamp(0, 1)
     images = (images * 255).round() / 255
     d = CrossValidated(Scene(h, target, 1000.0, cells_per_side=8), model, Measurements(images, az, el, 1.0),
-                       cross_validation_folds(len(az)), FitSettings(steps=60, rounds=1, search_iterations=8))
+                       cross_validation_folds(len(az)), FitSettings(steps=30, rounds=1, search_iterations=6))
     d.tried = [c for c in d.tried if c.label in TRIED]
     return d
 
