@@ -585,8 +585,7 @@ class CrossValidated(Diagnosis):
     the final model, the noise) and, once per fold, on the images outside the fold, scored on the
     fold's (`folds`): the held-out error is the mean misplaced flux over every image, each held out
     once, and the noise floor the mean of what noise leaves on each image under the fit on all. On
-    a few real images one held-out image decides little: the AA39 of the multi-focus tower, scored
-    on 2 of its 7, was left 7.6 times the noise with nothing named."""
+    a real heliostat's few images one or two held-out images would decide the verdict alone."""
 
     def __init__(self, scene: Scene, effects: dict, images: Measurements, folds: list[np.ndarray],
                  settings: FitSettings, max_effects: int = 2, plant: str = "", measured: bool = True):
