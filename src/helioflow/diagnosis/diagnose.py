@@ -4,7 +4,8 @@
    every measured image; residual signatures against sun position are measured (`signatures`).
 2. Attribution: every candidate change (diagnosis/candidates.py: an effect the model lacks, a
    present effect's fixed values freed, the sun switched to another profile) is fitted on the
-   train split and scored on the held-out splits (interpolation and extrapolation together). Fits
+   train split and scored on the held-out splits (interpolation and extrapolation together; a
+   dataset that holds none out by cross-validation over its images, `CrossValidated`). Fits
    are nested: a model with one change more starts from the fit without its most flexible change
    (and from the others only when that start ends above one of them) and never ends with a higher
    training loss. With one effect missing, the change that cuts the held-out error most is it;
