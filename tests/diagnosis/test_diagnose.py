@@ -12,7 +12,7 @@ from helioflow.diagnosis.candidates import candidates, implausible, separating
 from helioflow.diagnosis.criteria import SIGNIFICANCE, THRESHOLD
 from helioflow.diagnosis.diagnose import ROUNDING, Diagnosis
 from helioflow.diagnosis.ledger import update_ledger
-from helioflow.diagnosis.verdict import verdict
+from helioflow.diagnosis.verdict import model_flags, verdict
 from helioflow.models.physics_fit import FitSettings, Measurements
 from helioflow.physics.heliostat import Heliostat, ideal_heliostat, without_planes
 from helioflow.physics.scene import Scene
@@ -244,3 +244,13 @@ def test_a_slope_error_that_hardly_moves_the_misplaced_flux_is_named_by_its_fitt
         assert "slope error" in text and "too little to count alone" in text and "Wald" in text, text
         assert entry["named_for"] == "significance" and ranking[0]["named_for"] == "cut", summary
         assert ("does not determine" in text) == (not entry["significance"]["determined"]), text
+
+
+def test_the_verdict_names_a_model_value_stretched_beyond_its_physical_range():
+    """The real heliostats' model ends with the Buie sun's circumsolar ratio at its bound (0.3995):
+    the verdict says it stands in for something the model lacks; a value in range says nothing."""
+    words = model_flags({"sunshape.csr": 0.3995, "camera.gain": 0.0005})
+    assert words == (" The model's own fitted sunshape.csr = 0.3995 (a circumsolar ratio beyond that of the haziest "
+                     "measured skies (~0.35)) is implausible: it likely stands in for what the model lacks.")
+    assert model_flags({"sunshape.csr": 0.1, "slope_error.sigma_mrad": 1.5}) == ""
+

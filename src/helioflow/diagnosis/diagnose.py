@@ -74,7 +74,7 @@ from helioflow.diagnosis.criteria import (
 from helioflow.diagnosis.ledger import model_hash, read_ledger, revised, write_ledger
 from helioflow.diagnosis.noise import measured_noise, noise_floor
 from helioflow.diagnosis.residuals import by_sun_position, in_image, on_mirror
-from helioflow.diagnosis.verdict import verdict
+from helioflow.diagnosis.verdict import model_flags, verdict
 from helioflow.errors import ConfigError
 from helioflow.io import write_text_atomic
 from helioflow.models.physics_fit import (
@@ -829,6 +829,7 @@ def diagnose(ds, heliostat_path, effects: dict, settings: dict, ledger: list[dic
                 "mirror": on_mirror(fit_scene, final.effects, final.tensors, sun[0][at.to(sun[0].device)],
                                     sun[1][at.to(sun[1].device)], everything.images[at].to(device),
                                     over_noise[few] > EXPLAINED)}
+    changed = {diagnosis.candidate[label].effect for label in chosen}  # their values: the ranking flags them
     ledger, revisions = revised(ledger, str(ds.attrs.get("config_hash", name)), effects, before)
     result = {
         "dataset": ds.attrs.get("dataset", name),
@@ -863,7 +864,9 @@ def diagnose(ds, heliostat_path, effects: dict, settings: dict, ledger: list[dic
                                      **_predicted_centroids(spots)}},
         "uncertainty": {"changes": chosen, **_uncertainty(final).as_json()},
         "location": location,
-        "verdict": (heldout["note"] + " " if heldout["note"] else "") + verdict(ranking, summary, remaining, location),
+        "verdict": ((heldout["note"] + " " if heldout["note"] else "") + verdict(ranking, summary, remaining, location)
+                    + model_flags({k: v for k, v in _summarised(final.fitted_values()).items()
+                                   if k.split(".", 1)[0] not in changed})),
         "ledger": revisions,
     }
     return DiagnosisResult(result, ledger, pred.numpy(), everything.images.numpy(),

@@ -105,3 +105,12 @@ def _cut_words(entry: dict) -> str:
     return (f"{cut}, too little to count alone, but its fitted values stand away from doing nothing at "
             f"p = {test['p']:.1g} (Wald {test['wald']:.1f}, {test['dof']} degree{'s' * (test['dof'] > 1)} of "
             f"freedom{caveat})")
+
+
+def model_flags(fitted: dict) -> str:
+    """Sentences naming the model's own fitted values (keys "effect.param", as `implausible` takes
+    them) outside their physical range, or "": a value the model stretches there (a Buie sun's
+    circumsolar ratio at its bound) stands in for what the model lacks, whether or not a candidate
+    is named."""
+    return "".join(f" The model's own fitted {flag} is implausible: it likely stands in for what the model lacks."
+                   for flag in implausible(fitted))
