@@ -137,6 +137,45 @@ def validate_config(config: dict, schema_path: str | Path = SCHEMA_PATH, source:
     return config
 
 
+def follow_variant(config: dict, written: dict) -> list[str]:
+    """Fit config.yaml's sections that name datasets, networks or heliostats to what a variant keeps.
+
+    `config` is the merged config as snakemake builds it (config.yaml, then the variants and
+    `--config`; null entries not yet removed), changed in place; `written` is the part the user wrote
+    (snakemake's `config_settings.overwrite_config`). A named key the user did not write follows the
+    experiment: `plan.datasets` keeps the datasets that remain, and `plan` (without those, or without
+    the drt network its fit comes from) or `field` (without its template heliostat or its network)
+    falls away. A key the user wrote is left as written, for `validate_config` to check. Returns one
+    line per change, for the log.
+    """
+    kept = {section: {k for k, v in (config.get(section) or {}).items() if v is not None}
+            for section in ("datasets", "networks", "heliostats")}
+    notes = []
+    plan, wrote_plan = config.get("plan"), written.get("plan")
+    if isinstance(plan, dict) and plan.get("datasets") and "datasets" not in (wrote_plan or {}):
+        named = list(plan["datasets"])
+        remaining = [name for name in named if name in kept["datasets"]]
+        missing = "drt" not in kept["networks"]
+        if missing or not remaining:
+            config["plan"] = None
+            why = "this experiment has no drt network, whose fit a plan is made from" if missing else \
+                f"this experiment has none of its datasets ({', '.join(named)})"
+            notes.append(f"config.yaml's plan falls away: {why}")
+        elif remaining != named:
+            plan["datasets"] = remaining
+            notes.append(f"config.yaml's plan.datasets follows the experiment: {', '.join(remaining)} "
+                         f"(not {', '.join(sorted(set(named) - set(remaining)))})")
+    field, wrote_field = config.get("field"), written.get("field")
+    for key, section in (("heliostat", "heliostats"), ("network", "networks")):
+        if isinstance(field, dict) and key in field and key not in (wrote_field or {}) \
+                and field[key] not in kept[section]:
+            config["field"] = None
+            notes.append(f"config.yaml's field falls away: its {key} {field[key]!r} is not in this "
+                         f"experiment's {section}")
+            break
+    return notes
+
+
 def _without_nulls(node):
     """`node` with every mapping entry whose value is null removed, at any depth."""
     if isinstance(node, dict):

@@ -254,3 +254,22 @@ def test_the_verdict_names_a_model_value_stretched_beyond_its_physical_range():
                      "measured skies (~0.35)) is implausible: it likely stands in for what the model lacks.")
     assert model_flags({"sunshape.csr": 0.1, "slope_error.sigma_mrad": 1.5}) == ""
 
+
+
+def test_the_verdict_judges_the_named_changes_at_their_joint_fit_not_each_alone():
+    """A surface fitted alone to a spot moved by a tracking error bends far (the README's first run:
+    3.2 mm RMS against the true 0.44 mm) and is then needed beside tracking; the config lines make the
+    joint model, whose values are the ones judged: plausible there, no flag; implausible there, flagged."""
+    def entry(effect: str, base: list[str], fitted: dict) -> dict:
+        return {"effect": effect, "changes": effect, "change": "add", "fitted": fitted, "added_to": base,
+                "heldout_error_before": 0.19, "heldout_error_after": 0.06, "relative_reduction": 0.68,
+                "meaningful": True, "named_for": "cut", "confounded_with": [], "config": f"{effect}: {{}}"}
+
+    ranking = [entry("surface", [], {"control_heights_mm_rms": 3.19}),
+               entry("tracking", ["surface"], {"axis1_offset_mrad": -0.53})]
+    remaining = {"explained": True, "error": 0.002, "over_noise": 1.1, "noise_floor": 0.002, "model_resolution": None}
+    joint = {"surface.control_heights_mm_rms": 0.45, "tracking.axis1_offset_mrad": -0.53}
+    assert "implausible" not in verdict(ranking, {}, remaining, {}, joint)
+    text = verdict(ranking, {}, remaining, {}, {**joint, "surface.control_heights_mm_rms": 3.4})
+    assert "The fitted surface.control_heights_mm_rms = 3.4 (surface deformations of more than 3 mm RMS) is " \
+           "implausible" in text

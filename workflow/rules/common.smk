@@ -4,7 +4,7 @@ import os
 import sys
 
 from helioflow.batch import batched_datasets, batched_heliostats, unbatched
-from helioflow.config import read_yaml, validate_config
+from helioflow.config import follow_variant, read_yaml, validate_config
 from helioflow.errors import HelioflowError
 from helioflow.workflow import (
     NAME,
@@ -54,6 +54,9 @@ try:
     for configfile_path in workflow.configfiles:  # snakemake's own reading keeps the last of a key given twice
         shown = os.path.relpath(configfile_path)  # as the user named it, where it lies below the working folder
         read_yaml(configfile_path if shown.startswith("..") else shown)
+    # config.yaml's sections that name datasets or networks a variant drops follow the variant
+    for note in follow_variant(config, workflow.config_settings.overwrite_config):
+        print(f"helioflow: {note}", file=sys.stderr)
     # the field's heliostats and calibration datasets, and the leave-one-out folds of PAINT
     # datasets, become config entries of their own
     config = expand_config(validate_config(config, workflow.source_path("../schemas/config.schema.yaml")))

@@ -829,7 +829,9 @@ def diagnose(ds, heliostat_path, effects: dict, settings: dict, ledger: list[dic
                 "mirror": on_mirror(fit_scene, final.effects, final.tensors, sun[0][at.to(sun[0].device)],
                                     sun[1][at.to(sun[1].device)], everything.images[at].to(device),
                                     over_noise[few] > EXPLAINED)}
-    changed = {diagnosis.candidate[label].effect for label in chosen}  # their values: the ranking flags them
+    changed = {diagnosis.candidate[label].effect for label in chosen}
+    final_fitted = _summarised(final.fitted_values())  # the named changes' values flagged in the verdict, the
+    #                                                   model's own after it
     ledger, revisions = revised(ledger, str(ds.attrs.get("config_hash", name)), effects, before)
     result = {
         "dataset": ds.attrs.get("dataset", name),
@@ -850,6 +852,7 @@ def diagnose(ds, heliostat_path, effects: dict, settings: dict, ledger: list[dic
                            f"numerical floor ({NUMERICAL_FLOOR})"
                            if remaining["noise_floor"] < NUMERICAL_FLOOR and not diagnosis.measured else ""),
         "model_fitted": _summarised(model.fitted_values()),
+        "final_fitted": final_fitted,
         "ranking": ranking,
         "not_tested": ranked.skipped,
         "signatures": {"rms_centroid_offset_mrad": summary["centroid"], "median_width_ratio": summary["width_ratio"],
@@ -864,9 +867,10 @@ def diagnose(ds, heliostat_path, effects: dict, settings: dict, ledger: list[dic
                                      **_predicted_centroids(spots)}},
         "uncertainty": {"changes": chosen, **_uncertainty(final).as_json()},
         "location": location,
-        "verdict": ((heldout["note"] + " " if heldout["note"] else "") + verdict(ranking, summary, remaining, location)
-                    + model_flags({k: v for k, v in _summarised(final.fitted_values()).items()
-                                   if k.split(".", 1)[0] not in changed})),
+        "verdict": ((heldout["note"] + " " if heldout["note"] else "")
+                    + verdict(ranking, summary, remaining, location,
+                              {k: v for k, v in final_fitted.items() if k.split(".", 1)[0] in changed})
+                    + model_flags({k: v for k, v in final_fitted.items() if k.split(".", 1)[0] not in changed})),
         "ledger": revisions,
     }
     return DiagnosisResult(result, ledger, pred.numpy(), everything.images.numpy(),

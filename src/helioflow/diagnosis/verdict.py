@@ -9,12 +9,17 @@ from helioflow.diagnosis.criteria import NUMERICAL_FLOOR, PARTLY, THRESHOLD, com
 from helioflow.physics.effects import REGISTRY
 
 
-def verdict(ranking: list[dict], summary: dict, remaining: dict, location: dict) -> str:
+def verdict(ranking: list[dict], summary: dict, remaining: dict, location: dict, fitted: dict | None = None) -> str:
     """One plain-language paragraph with one of three outcomes: the residual is explained down to
     the noise; a registry effect is found (what, the evidence, how much fitting it helps, what it
     is confounded with and how to tell them apart, implausible fitted values, the config line),
     ending with what remains; or a residual well above the noise remains that no candidate
-    explains, with where it lives (`location`: by_sun_position, in_image, on_mirror)."""
+    explains, with where it lives (`location`: by_sun_position, in_image, on_mirror).
+
+    `fitted`: the named changes' values ("effect.param", tensors as "<key>_rms") at their joint fit,
+    the model the config lines make: those are the values judged plausible or not (a change's fit
+    alone, before the others are added, may bend to mimic them: a surface alone takes up a tracking
+    error)."""
     meaningful = [r for r in ranking if r["meaningful"]]
     if not meaningful:
         error, ratio = remaining["error"], remaining["over_noise"]
@@ -56,8 +61,8 @@ def verdict(ranking: list[dict], summary: dict, remaining: dict, location: dict)
             text += (f" {_words(r).capitalize()} and {c['effect'].replace('_', ' ')} ({c['relative_reduction']:.0%} "
                      f"{given}) explain the same residual on these images{r_text}: {c['separated_by']} would tell "
                      f"them apart.")
-        for flag in implausible({f"{r['changes']}.{k}": v for k, v in r["fitted"].items()}):
-            text += f" The fitted {flag} is implausible: it likely stands in for another effect."
+    for flag in implausible(fitted or {}):
+        text += f" The fitted {flag} is implausible: it likely stands in for another effect."
     if remaining["explained"]:
         text += (f" What remains (misplaced flux {remaining['error']:.3f}) is {remaining['over_noise']:.1f} times the "
                  "noise: explained down to the noise.")

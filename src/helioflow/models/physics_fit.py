@@ -141,12 +141,15 @@ class FitResult:
     uncertainty: FitUncertainty | None = None
 
     def fitted_values(self) -> dict[str, float | list]:
-        """{"effect.parameter": value} of every fitted parameter, tensors as flat lists (mrad/mm)."""
+        """{"effect.parameter": value} of every fitted parameter, tensors as flat lists (mrad/mm) as the
+        heliostat takes them (`TensorRole.effective`: the surface without the planes that move a facet as
+        a whole, which change no ray; their raw entries are free to wander along those directions)."""
         out = {}
         for effect, name in self.fitted:
             if effect not in self.tensors and not REGISTRY[effect].parameter(name).array:
                 out[f"{effect}.{name}"] = self.effects[effect][name]
         for effect, tensor in self.tensors.items():
+            tensor = TENSOR_EFFECTS[effect].effective(tensor.detach())
             scalars = [p.name for p in REGISTRY[effect].parameters if not p.array]
             if scalars:  # a tensor of named scalars (tracking): one value each
                 out.update({f"{effect}.{n}": float(v) for n, v in zip(scalars, tensor.tolist())})
