@@ -830,6 +830,8 @@ def diagnose(ds, heliostat_path, effects: dict, settings: dict, ledger: list[dic
                                     sun[1][at.to(sun[1].device)], everything.images[at].to(device),
                                     over_noise[few] > EXPLAINED)}
     changed = {diagnosis.candidate[label].effect for label in chosen}
+    for entry in ranking[:len(chosen)]:  # the chosen changes' lines give their values at the joint fit
+        entry["config"] = config_line(diagnosis.candidate[entry["effect"]], final)
     final_fitted = _summarised(final.fitted_values())  # the named changes' values flagged in the verdict, the
     #                                                   model's own after it
     ledger, revisions = revised(ledger, str(ds.attrs.get("config_hash", name)), effects, before)
