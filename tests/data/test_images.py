@@ -15,6 +15,7 @@ import pytest
 import torch
 import yaml
 from PIL import Image
+from support.pipeline import layered
 
 from helioflow.cli import main
 from helioflow.config import validate_config
@@ -394,12 +395,8 @@ def test_dry_run_imports_the_images_dataset_and_traces_only_the_synthetic_ones(f
 
 
 def test_the_own_images_variant_validates_over_the_default_config_and_its_example_imports(tmp_path, monkeypatch):
-    from snakemake.utils import update_config
-
     monkeypatch.chdir(REPO)  # the variant's paths are relative to the repository root
-    config = yaml.safe_load((REPO / "config.yaml").read_text())
-    update_config(config, yaml.safe_load((REPO / "workflow" / "variants" / "own_images.yaml").read_text()))
-    config = expand_config(validate_config(config, source="own_images.yaml"))
+    config = layered(("workflow/variants/own_images.yaml",))
     assert config["experiment"] == "own_images" and "field" not in config
     assert list(config["networks"]) == ["nearest", "raytrace", "drt"] and images_datasets(config) == ["own"]
     ds = import_images(import_images_params(config, "own"), tmp_path / "own.h5", tmp_path / "own_h.h5")

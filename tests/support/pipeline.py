@@ -9,6 +9,9 @@ from pathlib import Path
 
 import yaml
 
+from helioflow.config import follow_variant, validate_config
+from helioflow.workflow import expand_config
+
 REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "tests" / "workflow" / "tiny_config.yaml"
 BIN = Path(sys.executable).parent  # the venv's bin: snakemake and the `helioflow` CLI the rules call
@@ -22,6 +25,22 @@ def _workdir(path: Path, config: dict | None = None) -> Path:
     if config is not None:
         (path / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
     return path
+
+
+def layered(stack: tuple[str, ...], written: dict | None = None) -> dict:
+    """config.yaml with the stack's files (paths from the repository root) merged over it as snakemake
+    merges `--configfile`s (then `written`, a variant given as a dict), then fitted to what they keep
+    (`follow_variant`), validated and expanded, as common.smk does."""
+    from snakemake.utils import update_config
+
+    config = yaml.safe_load((REPO / "config.yaml").read_text())
+    user: dict = {}
+    for path in stack:
+        update_config(user, yaml.safe_load((REPO / path).read_text()))
+    update_config(user, written or {})
+    update_config(config, user)
+    follow_variant(config, user)
+    return expand_config(validate_config(config, source=" ".join(stack) or "variant"))
 
 
 PEAK_RSS = ("import resource, subprocess, sys; code = subprocess.call(sys.argv[2:]); "

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from snakemake.utils import update_config
+from support.pipeline import layered
 
 from helioflow.config import validate_config
 from helioflow.errors import ConfigError
@@ -102,16 +102,8 @@ def test_a_fold_name_in_use_and_an_unreadable_measurement_are_config_errors(tmp_
         expand_leave_one_out(_config(paint_dir=paint))
 
 
-def _layered(variant: str) -> dict:
-    """config.yaml with a variant merged over it as snakemake merges --configfile, then validated
-    and expanded as common.smk does."""
-    config = yaml.safe_load((REPO / "config.yaml").read_text())
-    update_config(config, yaml.safe_load((REPO / "workflow" / "variants" / variant).read_text()))
-    return expand_config(validate_config(config, source=variant))
-
-
 def test_the_paint_aa39_variant_validates_over_the_default_config_and_runs_folds_of_real_images():
-    config = _layered("paint_aa39.yaml")
+    config = layered(("workflow/variants/paint_aa39.yaml",))
     assert config["experiment"] == "paint_aa39" and "field" not in config
     assert list(config["networks"]) == ["nearest", "raytrace", "drt"]
     groups = leave_one_out_groups(config)
@@ -123,7 +115,7 @@ def test_the_paint_aa39_variant_validates_over_the_default_config_and_runs_folds
 
 
 def test_the_paint_heliostats_variant_takes_every_real_heliostat_with_two_images_on_a_target():
-    config = _layered("paint_heliostats.yaml")
+    config = layered(("workflow/variants/paint_heliostats.yaml",))
     assert config["experiment"] == "paint_heliostats" and "field" not in config
     groups = leave_one_out_groups(config)
     assert {g: len(f) for g, f in groups.items()} == {"aa39": 7, "aa39_lower": 5, "aa31_lower": 4, "aa31": 2,

@@ -8,11 +8,10 @@ from pathlib import Path
 import pytest
 import yaml
 from snakemake.utils import update_config
-from support.pipeline import REPO
+from support.pipeline import REPO, layered
 
-from helioflow.config import follow_variant, validate_config
+from helioflow.config import follow_variant
 from helioflow.errors import ConfigError
-from helioflow.workflow import expand_config
 
 VARIANTS = REPO / "workflow" / "variants"
 DOCUMENTS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md")), *sorted(VARIANTS.glob("*.yaml"))]
@@ -38,19 +37,6 @@ def shipped_stacks() -> list[tuple[str, ...]]:
     alone = {(str(path.relative_to(REPO)),) for path in VARIANTS.glob("*.yaml")}
     documented = {s for s in documented_stacks() if not USERS_OWN & {Path(f).name for f in s}}
     return sorted(alone | documented)
-
-
-def layered(stack: tuple[str, ...], written: dict | None = None) -> dict:
-    """config.yaml with the stack's files merged over it as snakemake merges `--configfile`s (plus
-    `written`, a variant given as a dict), then fitted, validated and expanded as common.smk does."""
-    config = yaml.safe_load((REPO / "config.yaml").read_text())
-    user: dict = {}
-    for path in stack:
-        update_config(user, yaml.safe_load((REPO / path).read_text()))
-    update_config(user, written or {})
-    update_config(config, user)
-    follow_variant(config, user)
-    return expand_config(validate_config(config, source=" ".join(stack) or "variant"))
 
 
 def test_the_docs_name_only_shipped_variants_or_the_users_own_files():
