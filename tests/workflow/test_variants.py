@@ -114,16 +114,17 @@ def dry_run(folder: Path, configfiles: tuple[str, ...]) -> None:
         workflow.dag(DAGSettings(targets={"all"})).execute_workflow(executor="dryrun")
 
 
-@pytest.mark.parametrize("stack", [*shipped_stacks(), ("no_sanity_check.yaml",)],
-                         ids=lambda s: "+".join(Path(f).stem for f in s))
+@pytest.mark.parametrize("stack", [(), *shipped_stacks(), ("no_sanity_check.yaml",)],
+                         ids=lambda s: "+".join(Path(f).stem for f in s) or "default")
 def test_snakemake_dry_runs_every_shipped_variant_and_documented_stack(repository_copy, stack, capfd,
                                                                         monkeypatch):
-    """`snakemake -n all --configfile <stack>` is accepted and schedules the stack's experiment's report
-    (a variant that drops sanity_check and sets nothing else among them: config.yaml's plan follows)."""
+    """`snakemake -n all --configfile <stack>` (config.yaml alone for the empty stack) is accepted and
+    schedules the stack's experiment's report (a variant that drops sanity_check and sets nothing else
+    among them: config.yaml's plan follows)."""
     monkeypatch.chdir(repository_copy)
     dry_run(repository_copy, stack)
     out, err = capfd.readouterr()
-    experiment = yaml.safe_load((repository_copy / stack[-1]).read_text())["experiment"]
+    experiment = yaml.safe_load((repository_copy / (stack or ("config.yaml",))[-1]).read_text())["experiment"]
     assert f"results/{experiment}/report.html" in out + err, (out + err)[-3000:]
     if stack == ("no_sanity_check.yaml",):
         assert "helioflow: config.yaml's plan falls away: this experiment has none of its datasets" in err
