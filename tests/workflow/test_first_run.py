@@ -45,8 +45,12 @@ def test_the_first_run_finishes_with_its_report_and_a_verdict(first_run):
     # surface fitted alone to a spot that the tracking error moved
     surface = diagnosis["final_fitted"]["surface.control_heights_mm_rms"]
     assert 0.2 < surface < 0.8, diagnosis["final_fitted"]
-    quoted = re.search(r"give a surface of ([0-9.]+) mm RMS", " ".join((REPO / "README.md").read_text().split()))
-    assert quoted and float(quoted.group(1)) == round(surface, 2), (quoted, surface)  # as the README says
+    walkthrough = " ".join((REPO / "docs" / "diagnosis.md").read_text().split())
+    quoted = re.search(r"fitted beside tracking it is ([0-9.]+) mm RMS", walkthrough)
+    assert quoted and float(quoted.group(1)) == round(surface, 2), (quoted, surface)  # as docs/diagnosis.md says
+    # ... and as it says of how well the images determine it
+    sigma = diagnosis["uncertainty"]["tensors"]["surface.control_heights_mm"]
+    assert sigma["undetermined"] == 36 and "marks all of them not determined" in walkthrough
 
 
 @pytest.mark.slow

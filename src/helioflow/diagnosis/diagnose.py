@@ -425,7 +425,7 @@ class Diagnosis:
         `reduction_alone` (the cut when it is the only change) and `confounded_with`."""
         before = self.error(())
         selected = self.select()
-        ranking = [self._entry(n, selected[:k], meaningful=True) for k, n in enumerate(selected)]
+        ranking = [self._entry(n, selected[:k], meaningful=True, joint=selected) for k, n in enumerate(selected)]
         rest = [self._entry(c.label, [], meaningful=False) for c in self.tried if c.label not in selected]
         rest.sort(key=lambda r: (not r["identifiable"], -r["relative_reduction"]))
         ranking += rest
@@ -562,8 +562,10 @@ class Diagnosis:
                         "heldout_error": theirs, "separated_by": separating(self.candidate[label].effect, c.effect)})
         return out
 
-    def _entry(self, name: str, base: list[str], meaningful: bool) -> dict:
-        """One ranking entry: candidate `name` added to the model plus the candidates `base`."""
+    def _entry(self, name: str, base: list[str], meaningful: bool, joint: list[str] | None = None) -> dict:
+        """One ranking entry: candidate `name` added to the model plus the candidates `base`; its config
+        line with the values of the fit of `joint` (the selected changes together, the model the lines
+        make), else of its own fit; `fitted` always its own fit's."""
         before, after = self.error(base), self.error([*base, name])
         c = self.candidate[name]
         fit = self.fit([*base, name])
@@ -576,7 +578,7 @@ class Diagnosis:
                 "significance": test,
                 "named_for": ("" if not meaningful else "cut" if test is None
                               or 1.0 - after / max(before, 1e-30) >= THRESHOLD else "significance"),
-                "config": config_line(c, fit)}
+                "config": config_line(c, self.fit(joint) if joint else fit)}
 
 
 class CrossValidated(Diagnosis):
@@ -830,8 +832,6 @@ def diagnose(ds, heliostat_path, effects: dict, settings: dict, ledger: list[dic
                                     sun[1][at.to(sun[1].device)], everything.images[at].to(device),
                                     over_noise[few] > EXPLAINED)}
     changed = {diagnosis.candidate[label].effect for label in chosen}
-    for entry in ranking[:len(chosen)]:  # the chosen changes' lines give their values at the joint fit
-        entry["config"] = config_line(diagnosis.candidate[entry["effect"]], final)
     final_fitted = _summarised(final.fitted_values())  # the named changes' values flagged in the verdict, the
     #                                                   model's own after it
     ledger, revisions = revised(ledger, str(ds.attrs.get("config_hash", name)), effects, before)
